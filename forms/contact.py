@@ -1,0 +1,224 @@
+"""The four discretizations of Coulomb frictional contact on fractures: pure UFL.
+
+Equation numbers refer to Beaude, Chouly, Laaziri, Masson (2023). Every formulation is written
+with the same three *complementarity arguments* ``(P_n, P_τ, S)``, chosen so that at a solution
+the contact traction is ``T_n = [P_n]_R-`` and ``T_τ = [P_τ]_S``; a point is in contact when
+``P_n < 0`` and slips when ``|P_τ| > S``:
+
+=================  ====================================  ===============================
+formulation        ``P_n``                               ``P_τ``
+=================  ====================================  ===============================
+nitsche (8)        ``T_n(u) - β_n [[u]]_n``              ``T_τ(u) - β_τ [[u]]_τ``
+mean_nitsche (7)   ``π⁰T_n(u) - β_n π⁰[[u]]_n``          ``π⁰T_τ(u) - β_τ π⁰[[u]]_τ``
+stabilized (5/6)   as mean_nitsche                       as mean_nitsche
+mixed (3/4)        ``-(λ_n + β_n π⁰[[u]]_n)``            ``-(λ_τ + β_τ π⁰[[u]]_τ)``
+=================  ====================================  ===============================
+
+with ``S = -F [P_n]_R-`` (Coulomb), ``S = s`` (Tresca), and no tangential terms at all when
+frictionless. The face averages ``π⁰`` are extra facewise-constant unknowns ("averages") tied to
+``u`` by linear equations, which keeps the Jacobian exact. Multipliers ``λ = -T`` live in the
+same DG0 space on the fracture faces, in the ``(n⁺, τ)`` basis.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import ufl
+
+from poromech.forms.fracture import (
+    FractureKinematics,
+    ball_projection,
+    negative_part,
+    normal_jump,
+    slip,
+)
+
+__all__ = [
+    "FORMULATIONS",
+    "FRICTION_LAWS",
+    "ContactParameters",
+    "average_names",
+    "averages_residual",
+    "complementarity_arguments",
+    "displacement_residual",
+    "multiplier_residual",
+    "multiplier_size",
+    "state_indicators",
+]
+
+FORMULATIONS = ("none", "mixed", "stabilized_mixed", "mean_nitsche", "nitsche")
+FRICTION_LAWS = ("coulomb", "tresca", "frictionless")
+
+
+@dataclass(frozen=True)
+class ContactParameters:
+    """Contact law and discretization parameters as UFL data.
+
+    Attributes:
+        formulation: One of :data:`FORMULATIONS`.
+        friction: One of :data:`FRICTION_LAWS`.
+        theta: Nitsche symmetry parameter θ (-1, 0 or 1).
+        beta_n: ``β_n = β_n⁰ / h_σ`` (Pa/m).
+        beta_t: ``β_τ = β_τ⁰ / h_σ`` (Pa/m).
+        friction_coefficient: Coulomb coefficient ``F`` (Coulomb only).
+        slip_bound: Tresca threshold ``s`` (Pa) (Tresca only).
+        average_scale: Weight (Pa/m) of the linear equations defining face averages of jumps.
+    """
+
+    formulation: str
+    friction: str
+    theta: float
+    beta_n: ufl.core.expr.Expr
+    beta_t: ufl.core.expr.Expr
+    friction_coefficient: ufl.core.expr.Expr | None = None
+    slip_bound: ufl.core.expr.Expr | None = None
+    average_scale: ufl.core.expr.Expr | float = 1.0
+
+    @property
+    def tangential(self) -> bool:
+        """Whether tangential (friction) terms exist."""
+        return self.friction != "frictionless"
+
+    @property
+    def active(self) -> bool:
+        """Whether the contact conditions are imposed at all."""
+        return self.formulation != "none"
+
+
+def multiplier_size(p: ContactParameters) -> int:
+    """Number of multiplier components per fracture face (0 for Nitsche-type methods)."""
+    if p.formulation in ("mixed", "stabilized_mixed"):
+        return 2 if p.tangential else 1
+    return 0
+
+
+def average_names(p: ContactParameters) -> tuple[str, ...]:
+    """Names of the face-average unknowns a formulation needs, in storage order."""
+    if p.formulation == "mixed":
+        return ("jump_n", "jump_t") if p.tangential else ("jump_n",)
+    if p.formulation in ("stabilized_mixed", "mean_nitsche"):
+        names = ("traction_n", "jump_n")
+        return names + ("traction_t", "jump_t") if p.tangential else names
+    return ()
+
+
+def _components(f, k: int) -> list:
+    """Components of a DG0 field with ``k`` values (a scalar field when ``k == 1``)."""
+    return [f] if k == 1 else [f[i] for i in range(k)]
+
+
+def _named(f, names: tuple[str, ...]) -> dict:
+    return dict(zip(names, _components(f, len(names)), strict=True))
+
+
+def slip_threshold(p: ContactParameters, pn):
+    """``S = -F [P_n]_R-`` (Coulomb) or ``S = s`` (Tresca)."""
+    if p.friction == "coulomb":
+        return -p.friction_coefficient * negative_part(pn)
+    return p.slip_bound
+
+
+def complementarity_arguments(fk: FractureKinematics, p: ContactParameters, u, lam=None, avg=None):
+    """``(P_n, P_τ, S)`` of the table above; ``P_τ`` and ``S`` are None when frictionless."""
+    if p.formulation == "nitsche":
+        pn = fk.normal_traction(u) - p.beta_n * normal_jump(u, fk.n)
+        pt = fk.tangential_traction(u) - p.beta_t * slip(u, fk.n, fk.slip_reference)
+    elif p.formulation in ("mean_nitsche", "stabilized_mixed"):
+        a = _named(avg, average_names(p))
+        pn = a["traction_n"] - p.beta_n * a["jump_n"]
+        pt = a["traction_t"] - p.beta_t * a["jump_t"] if p.tangential else None
+    elif p.formulation == "mixed":
+        a = _named(avg, average_names(p))
+        lm = _components(lam, multiplier_size(p))
+        pn = -(lm[0] + p.beta_n * a["jump_n"])
+        pt = -(lm[1] + p.beta_t * a["jump_t"]) if p.tangential else None
+    else:
+        raise ValueError(f"formulation '{p.formulation}' imposes no contact conditions")
+    if not p.tangential:
+        return pn, None, None
+    return pn, pt, slip_threshold(p, pn)
+
+
+def displacement_residual(fk: FractureKinematics, p: ContactParameters, u, v, dG, lam=None,
+                          avg=None):
+    """Fracture terms of the displacement equation (the bulk terms are added by the caller).
+
+    Includes the fluid pressure ``∫ p_f [[v]]_n`` of eq. (5) when ``fk.fracture_pressure`` is set.
+    Returns None when there is nothing to integrate on the fractures.
+    """
+    jn_v = normal_jump(v, fk.n)
+    jt_v = slip(v, fk.n)
+    terms = []
+    if fk.fracture_pressure is not None:
+        terms.append(fk.fracture_pressure * jn_v)
+    if p.formulation in ("nitsche", "mean_nitsche"):
+        pn, pt, s = complementarity_arguments(fk, p, u, lam, avg)
+        if p.formulation == "nitsche":
+            tn, tt = fk.normal_traction(u), fk.tangential_traction(u) if p.tangential else None
+        else:
+            a = _named(avg, average_names(p))
+            tn, tt = a["traction_n"], a.get("traction_t")
+        th = p.theta
+        tn_v = fk.normal_variation(v)
+        terms.append(-th / p.beta_n * tn * tn_v)
+        terms.append(negative_part(pn) * (th * tn_v - p.beta_n * jn_v) / p.beta_n)  # (7)/(8)
+        if p.tangential:
+            tt_v = fk.tangential_variation(v)
+            terms.append(-th / p.beta_t * tt * tt_v)
+            terms.append(ball_projection(pt, s) * (th * tt_v - p.beta_t * jt_v) / p.beta_t)
+    elif p.formulation in ("mixed", "stabilized_mixed"):
+        lm = _components(lam, multiplier_size(p))
+        terms.append(lm[0] * jn_v)  # ∫ λ·[[v]], eq. (3)/(5)
+        if p.tangential:
+            terms.append(lm[1] * jt_v)
+        if p.formulation == "stabilized_mixed" and p.theta != 0:
+            a = _named(avg, average_names(p))
+            terms.append(-p.theta / p.beta_n * (lm[0] + a["traction_n"]) * fk.normal_variation(v))
+            if p.tangential:
+                terms.append(
+                    -p.theta / p.beta_t * (lm[1] + a["traction_t"]) * fk.tangential_variation(v)
+                )
+    if not terms:
+        return None
+    return sum(terms[1:], terms[0]) * dG
+
+
+def multiplier_residual(fk: FractureKinematics, p: ContactParameters, u, lam, mu, avg, dG):
+    """Facewise complementarity equations ``λ + [P]`` = 0, eqs. (4) and (6), tested with ``μ``."""
+    pn, pt, s = complementarity_arguments(fk, p, u, lam, avg)
+    k = multiplier_size(p)
+    lm, mm = _components(lam, k), _components(mu, k)
+    form = (lm[0] + negative_part(pn)) * mm[0]
+    if p.tangential:
+        form += (lm[1] + ball_projection(pt, s)) * mm[1]
+    return form * dG
+
+
+def averages_residual(fk: FractureKinematics, p: ContactParameters, u, avg, q, dG):
+    """Linear equations defining the face averages ``π⁰T(u)`` and ``π⁰[[u]]``, tested with ``q``."""
+    names = average_names(p)
+    a, r = _named(avg, names), _named(q, names)
+    exact = {
+        "jump_n": normal_jump(u, fk.n),
+        "jump_t": slip(u, fk.n, fk.slip_reference),
+        "traction_n": fk.normal_traction(u),
+        "traction_t": fk.tangential_traction(u),
+    }
+    weight = {"jump_n": p.average_scale, "jump_t": p.average_scale}
+    form = sum(weight.get(k, 1.0) * (a[k] - exact[k]) * r[k] for k in names)
+    return form * dG
+
+
+def state_indicators(fk: FractureKinematics, p: ContactParameters, u, lam=None, avg=None):
+    """Pointwise ``(contact, slip, T_n, T_τ)``: 0/1 indicators and contact tractions (Pa)."""
+    pn, pt, s = complementarity_arguments(fk, p, u, lam, avg)
+    contact = ufl.conditional(ufl.lt(pn, 0.0), 1.0, 0.0)
+    tn = negative_part(pn)
+    if not p.tangential:
+        return contact, 0.0 * contact, tn, 0.0 * tn
+    sliding = ufl.gt(abs(pt), s)
+    if p.friction == "coulomb":
+        sliding = ufl.And(ufl.lt(pn, 0.0), sliding)
+    slipping = ufl.conditional(sliding, 1.0, 0.0)
+    return contact, slipping, tn, ball_projection(pt, s)

@@ -1,0 +1,123 @@
+"""Kinematics and tractions on the fracture network: pure UFL.
+
+All quantities live on the interior fracture facets of the connected mesh, measured with a
+``dS`` whose ``'+'`` side is the side that ``n⁺`` points out of (see ``poromech.mesh``). In 2D the
+tangent is ``τ = (n⁺_y, -n⁺_x)``, the direction in which the fracture polyline is written.
+Sign conventions follow the paper: ``[[u]] = u⁺ - u⁻``, ``[[u]]_n = [[u]]·n⁺ <= 0`` (negative when
+open), contact traction ``T_n <= 0`` (compression), aperture ``d_f = d_0 - [[u]]_n``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import ufl
+
+from poromech.forms.elasticity import sigma
+
+__all__ = [
+    "FractureKinematics",
+    "ball_projection",
+    "jump",
+    "negative_part",
+    "normal_jump",
+    "positive_part",
+    "slip",
+    "tangent",
+]
+
+
+def tangent(n):
+    """Unit tangent ``τ = (n_y, -n_x)`` of a 2D fracture with normal ``n``."""
+    return ufl.as_vector((n[1], -n[0]))
+
+
+def jump(w):
+    """``[[w]] = w⁺ - w⁻``."""
+    return w("+") - w("-")
+
+
+def normal_jump(w, n):
+    """``[[w]]_n = [[w]]·n⁺`` (m); negative when the fracture opens."""
+    return ufl.dot(jump(w), n)
+
+
+def slip(w, n, w_ref=None):
+    """Tangential jump ``[[w]]_τ`` (m), minus that of ``w_ref`` (a slip increment) if given."""
+    s = ufl.dot(jump(w), tangent(n))
+    return s - ufl.dot(jump(w_ref), tangent(n)) if w_ref is not None else s
+
+
+def negative_part(x):
+    """``[x]_R- = min(0, x)``."""
+    return ufl.min_value(x, 0.0)
+
+
+def positive_part(x):
+    """``[x]_R+ = max(0, x)``."""
+    return ufl.max_value(x, 0.0)
+
+
+def ball_projection(x, radius):
+    """``[x]_α``: projection of a 2D tangential scalar on ``[-α, α]`` (α >= 0)."""
+    return ufl.max_value(ufl.min_value(x, radius), -radius)
+
+
+@dataclass(frozen=True)
+class FractureKinematics:
+    """What the contact forms need to know about the fracture and the matrix next to it.
+
+    Attributes:
+        n: ``n⁺`` as a UFL expression on the fracture facets (``FacetNormal('+')``).
+        young: Young's modulus (Pa), UFL coefficient or constant.
+        poisson: Poisson's ratio, UFL coefficient or constant.
+        side: ``"plus"`` evaluates the contact traction from the ``+`` side as in the paper,
+            ``"mean"`` averages both sides.
+        fracture_pressure: Fluid pressure ``p_f`` in the fractures (Pa), or None.
+        matrix_pressure: Matrix pressure ``p_m`` (Pa) for the Biot term, or None.
+        biot: Biot coefficient ``b`` (used with ``matrix_pressure``).
+        slip_reference: Displacement whose tangential jump is subtracted in the friction law
+            (the previous time step, for quasi-static friction), or None (static: total jump).
+    """
+
+    n: ufl.core.expr.Expr
+    young: ufl.core.expr.Expr
+    poisson: ufl.core.expr.Expr
+    side: str = "plus"
+    fracture_pressure: ufl.core.expr.Expr | None = None
+    matrix_pressure: ufl.core.expr.Expr | None = None
+    biot: ufl.core.expr.Expr | float = 1.0
+    slip_reference: ufl.core.expr.Expr | None = None
+
+    def stress_variation(self, v):
+        """``σ(v) n⁺`` on the chosen side (the linear part of the traction)."""
+        stress = sigma(v, self.young, self.poisson)
+        side = stress("+") if self.side == "plus" else 0.5 * (stress("+") + stress("-"))
+        return ufl.dot(side, self.n)
+
+    def traction(self, u):
+        """Contact traction ``T(u) = (σ(u) - b p_m I) n⁺ + p_f n⁺`` (Pa), after eq. (1) and §3."""
+        t = self.stress_variation(u)
+        if self.matrix_pressure is not None:
+            pm = self.matrix_pressure
+            pm_side = pm("+") if self.side == "plus" else 0.5 * (pm("+") + pm("-"))
+            t = t - self.biot * pm_side * self.n
+        if self.fracture_pressure is not None:
+            t = t + self.fracture_pressure * self.n
+        return t
+
+    def normal_traction(self, u):
+        """``T_n(u) = T(u)·n⁺`` (Pa)."""
+        return ufl.dot(self.traction(u), self.n)
+
+    def tangential_traction(self, u):
+        """``T_τ(u) = T(u)·τ`` (Pa)."""
+        return ufl.dot(self.traction(u), tangent(self.n))
+
+    def normal_variation(self, v):
+        """``T_n(v)`` for a test/trial direction ``v`` (no pressure terms)."""
+        return ufl.dot(self.stress_variation(v), self.n)
+
+    def tangential_variation(self, v):
+        """``T_τ(v)`` for a test/trial direction ``v`` (no pressure terms)."""
+        return ufl.dot(self.stress_variation(v), tangent(self.n))

@@ -1,0 +1,21 @@
+"""Errors that end a run with a clear message and a specific exit status."""
+
+from __future__ import annotations
+
+__all__ = ["SolverError"]
+
+
+class SolverError(RuntimeError):
+    """A solver that did not converge.
+
+    Attributes:
+        reason: PETSc converged reason (name).
+        history: Residual norms, one per iteration.
+        record: Optional JSON-ready details of the failed solve.
+    """
+
+    def __init__(self, message: str, reason: str = "", history=(), record: dict | None = None):
+        super().__init__(message)
+        self.reason = reason
+        self.history = list(history)
+        self.record = record or {}

@@ -1,0 +1,189 @@
+"""Plane geometry of a fractured domain: the polygon, the fracture polylines, and their checks.
+
+Pure NumPy, no meshing and no MPI. A fracture is a polyline ``P_0, ..., P_k``; a polyline with a
+corner is one fracture. Its orientation is fixed by the order of its points: on segment
+``[P_i, P_{i+1}]`` the unit tangent is ``t = (P_{i+1} - P_i) / |P_{i+1} - P_i|`` and the fracture
+normal is the left normal ``n⁺ = (-t_y, t_x)``. The ``+`` side of the fracture is the side that
+``n⁺`` points *out of* (the right-hand side when walking from ``P_0`` to ``P_k``), as in the paper:
+``[[u]] = u⁺ - u⁻``, ``[[u]]_n = [[u]]·n⁺`` (negative when the fracture opens).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+__all__ = [
+    "GeometryError",
+    "PlaneGeometry",
+    "arc_length_positions",
+    "segment_normals",
+]
+
+
+class GeometryError(ValueError):
+    """A domain or fracture network that cannot be meshed."""
+
+
+@dataclass(frozen=True)
+class PlaneGeometry:
+    """A polygonal domain cut by fracture polylines.
+
+    Attributes:
+        boundary: Polygon vertices, shape ``(n, 2)`` (m), either orientation. Boundary edge ``i``
+            joins vertex ``i`` and vertex ``i+1`` (cyclically).
+        boundary_names: Name of each boundary edge, ``len == n``.
+        fractures: One ``(k_i + 1, 2)`` array of points per fracture (m).
+        fracture_names: Name of each fracture.
+    """
+
+    boundary: npt.NDArray[np.float64]
+    boundary_names: tuple[str, ...]
+    fractures: tuple[npt.NDArray[np.float64], ...]
+    fracture_names: tuple[str, ...]
+
+    @property
+    def diameter(self) -> float:
+        """Diameter of the bounding box of the domain (m)."""
+        return float(np.linalg.norm(self.boundary.max(axis=0) - self.boundary.min(axis=0)))
+
+    def fracture_lengths(self) -> npt.NDArray[np.float64]:
+        """Length of every fracture (m)."""
+        return np.array([np.linalg.norm(np.diff(p, axis=0), axis=1).sum() for p in self.fractures])
+
+
+def segment_normals(points: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """Unit normals ``n⁺`` (left normals) of the segments of a polyline, shape ``(k, 2)``."""
+    t = np.diff(points, axis=0)
+    t /= np.linalg.norm(t, axis=1)[:, None]
+    return np.column_stack([-t[:, 1], t[:, 0]])
+
+
+def arc_length_positions(
+    points: npt.NDArray[np.float64], segment: npt.NDArray[np.int32], x: npt.NDArray[np.float64]
+) -> npt.NDArray[np.float64]:
+    """Arc length from the first point of a polyline to points ``x`` lying on ``segment``."""
+    lengths = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    start = np.concatenate([[0.0], np.cumsum(lengths)])
+    t = np.diff(points, axis=0) / lengths[:, None]
+    return start[segment] + np.einsum("ij,ij->i", x - points[segment], t[segment])
+
+
+def _orient(a, b, c) -> float:
+    """Twice the signed area of triangle ``abc``."""
+    return float((b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]))
+
+
+def _on_segment(p, a, b, tol: float) -> bool:
+    """True when ``p`` lies on segment ``[a, b]`` within distance ``tol``."""
+    ab = b - a
+    s = np.clip(np.dot(p - a, ab) / np.dot(ab, ab), 0.0, 1.0)
+    return bool(np.linalg.norm(a + s * ab - p) <= tol)
+
+
+def _segments_relation(a, b, c, d, tol: float) -> str:
+    """Classify two segments: 'disjoint', 'touch' (share isolated points), 'cross', 'overlap'."""
+    scale = max(np.linalg.norm(b - a), np.linalg.norm(d - c))
+    o1, o2 = _orient(a, b, c), _orient(a, b, d)
+    o3, o4 = _orient(c, d, a), _orient(c, d, b)
+    area_tol = tol * scale
+    collinear = abs(o1) <= area_tol and abs(o2) <= area_tol
+    if collinear:
+        t = (b - a) / np.linalg.norm(b - a)
+        s = sorted([np.dot(c - a, t), np.dot(d - a, t)])
+        lo, hi = max(0.0, s[0]), min(np.linalg.norm(b - a), s[1])
+        if hi - lo > tol:
+            return "overlap"
+        return "touch" if hi - lo > -tol else "disjoint"
+    if (o1 > area_tol and o2 < -area_tol or o1 < -area_tol and o2 > area_tol) and (
+        o3 > area_tol and o4 < -area_tol or o3 < -area_tol and o4 > area_tol
+    ):
+        return "cross"
+    if any(_on_segment(p, q, r, tol) for p, q, r in ((c, a, b), (d, a, b), (a, c, d), (b, c, d))):
+        return "touch"
+    return "disjoint"
+
+
+def _point_in_polygon(p, poly, tol: float) -> bool:
+    """True when ``p`` is inside the polygon or on its boundary (within ``tol``)."""
+    n = len(poly)
+    for i in range(n):
+        if _on_segment(p, poly[i], poly[(i + 1) % n], tol):
+            return True
+    inside = False
+    for i in range(n):
+        a, b = poly[i], poly[(i + 1) % n]
+        if (a[1] > p[1]) != (b[1] > p[1]):
+            xc = a[0] + (p[1] - a[1]) * (b[0] - a[0]) / (b[1] - a[1])
+            if p[0] < xc:
+                inside = not inside
+    return inside
+
+
+def check_geometry(geo: PlaneGeometry) -> None:
+    """Reject geometries that cannot be meshed or are physically meaningless.
+
+    Checks: polygon with >= 3 vertices, no zero-length or crossing edges; every fracture with
+    >= 2 points, no zero-length segment, no self-crossing or folding back, inside the domain,
+    not crossing the boundary and not running along it; no two fractures overlapping.
+    Crossings of different fractures (X or T junctions) and fractures ending on the boundary
+    are allowed.
+
+    Raises:
+        GeometryError: With a one-line message naming the offending item.
+    """
+    poly = geo.boundary
+    tol = 1e-9 * geo.diameter
+    n = len(poly)
+    if n < 3:
+        raise GeometryError(f"domain polygon has {n} vertices (at least 3 needed)")
+    edges = [(poly[i], poly[(i + 1) % n]) for i in range(n)]
+    for i, (a, b) in enumerate(edges):
+        if np.linalg.norm(b - a) <= tol:
+            raise GeometryError(f"domain edge {i} has zero length at {tuple(a)}")
+    for i in range(n):
+        for j in range(i + 2, n):
+            if i == 0 and j == n - 1:
+                continue
+            if _segments_relation(*edges[i], *edges[j], tol) != "disjoint":
+                raise GeometryError(f"domain polygon crosses itself (edges {i} and {j})")
+    all_segments = []
+    for k, (pts, name) in enumerate(zip(geo.fractures, geo.fracture_names, strict=True)):
+        label = f"fracture '{name}'"
+        if len(pts) < 2:
+            raise GeometryError(f"{label} has {len(pts)} point(s) (at least 2 needed)")
+        segs = [(pts[i], pts[i + 1]) for i in range(len(pts) - 1)]
+        for i, (a, b) in enumerate(segs):
+            if np.linalg.norm(b - a) <= tol:
+                raise GeometryError(f"{label} has a zero-length segment {i} at {tuple(a)}")
+        for i in range(len(segs)):
+            for j in range(i + 1, len(segs)):
+                rel = _segments_relation(*segs[i], *segs[j], tol)
+                if j == i + 1 and rel == "touch":
+                    continue
+                if rel != "disjoint":
+                    raise GeometryError(f"{label} crosses or folds onto itself (segments {i}, {j})")
+        for p in pts:
+            if not _point_in_polygon(p, poly, tol):
+                raise GeometryError(f"{label} has point {tuple(p)} outside the domain")
+        for i, (a, b) in enumerate(segs):
+            for e, (c, d) in enumerate(edges):
+                rel = _segments_relation(a, b, c, d, tol)
+                if rel == "cross":
+                    raise GeometryError(f"{label} segment {i} crosses domain edge {e}")
+                if rel == "overlap":
+                    raise GeometryError(f"{label} segment {i} runs along domain edge {e}")
+            mid = 0.5 * (a + b)
+            if not _point_in_polygon(mid, poly, tol):
+                raise GeometryError(f"{label} segment {i} leaves the domain")
+        all_segments.append((name, segs))
+    for k in range(len(all_segments)):
+        for m in range(k + 1, len(all_segments)):
+            for a, b in all_segments[k][1]:
+                for c, d in all_segments[m][1]:
+                    if _segments_relation(a, b, c, d, tol) == "overlap":
+                        raise GeometryError(
+                            f"fractures '{all_segments[k][0]}' and '{all_segments[m][0]}' overlap"
+                        )

@@ -1,0 +1,368 @@
+"""Distributed fractured meshes and the duplicated-node ("cracked") topology.
+
+The mesh stays *connected*: fracture faces are ordinary interior facets, so interior-facet
+integrals see both sides of a fracture with matching quadrature points. Displacement
+discontinuities come from the function space instead: its dofmap is built on a second, "cracked"
+topology with the same cells, in which every vertex on the fracture network is split into one
+copy per connected component of its cell star (two cells being connected when they share a
+facet that is not a fracture facet). This gives 2 copies along a fracture, 1 at an immersed tip,
+2 at a corner, 3 at a T junction, 4 at an X junction, and 2 where a fracture meets the boundary.
+
+Collective functions are marked so; all others are local.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import dolfinx_solver  # noqa: F401  (orders MPI before the bindings)
+import basix.ufl
+import dolfinx
+import dolfinx.cpp as _cpp
+import numpy as np
+import numpy.typing as npt
+import ufl
+from dolfinx.io.utils import distribute_entity_data
+from mpi4py import MPI
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from poromech.geometry import PlaneGeometry
+from poromech.meshing import MeshArrays
+
+__all__ = [
+    "FractureFaces",
+    "FracturedMesh",
+    "crack_vertices",
+    "create_fractured_mesh",
+    "cracked_space",
+    "fracture_measure",
+]
+
+#: Subdomain id of the fracture network in the interior facet measure.
+FRACTURE_TAG = 1
+
+#: Local facet ``i`` of a DOLFINx triangle is opposite vertex ``i``.
+_TRIANGLE_FACETS = np.array([[1, 2], [0, 2], [0, 1]])
+
+
+def crack_vertices(
+    cells: npt.NDArray[np.int64], fracture_facets: npt.NDArray[np.int64], num_nodes: int
+) -> tuple[npt.NDArray[np.int64], int]:
+    """Split fracture vertices into one copy per connected component of their cell star.
+
+    Args:
+        cells: Triangle nodes, ``(num_cells, 3)``.
+        fracture_facets: Nodes of the fracture faces, ``(num_faces, 2)``.
+        num_nodes: Number of mesh nodes.
+
+    Returns:
+        The cells in cracked vertex numbering (copy 0 of a node keeps the node number, further
+        copies are numbered from ``num_nodes`` on) and the number of cracked vertices.
+    """
+    nc = len(cells)
+    edges = cells[:, _TRIANGLE_FACETS]  # (nc, 3, 2) node pairs, local facet order
+    lo, hi = edges.min(axis=2).ravel(), edges.max(axis=2).ravel()
+    key = lo * num_nodes + hi
+    fkey = np.sort(fracture_facets, axis=1)
+    fkey = fkey[:, 0] * num_nodes + fkey[:, 1]
+    order = np.argsort(key, kind="stable")
+    sk = key[order]
+    pair = np.flatnonzero(sk[1:] == sk[:-1])
+    first, second = order[pair], order[pair + 1]  # flat (cell, local facet) indices
+    keep = ~np.isin(sk[pair], fkey)
+    first, second = first[keep], second[keep]
+    c1, f1 = np.divmod(first, 3)
+    c2, f2 = np.divmod(second, 3)
+    rows, cols = [], []
+    for k in range(2):  # both vertices of the shared edge
+        node = edges[c1, f1, k]
+        j1 = np.argmax(cells[c1] == node[:, None], axis=1)
+        j2 = np.argmax(cells[c2] == node[:, None], axis=1)
+        rows.append(3 * c1 + j1)
+        cols.append(3 * c2 + j2)
+    rows, cols = np.concatenate(rows), np.concatenate(cols)
+    graph = coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols)), shape=(3 * nc, 3 * nc))
+    ncomp, label = connected_components(graph, directed=False)
+    first_corner = np.full(ncomp, 3 * nc, dtype=np.int64)
+    np.minimum.at(first_corner, label, np.arange(3 * nc))
+    comp_node = cells.ravel()[first_corner]
+    order = np.lexsort((np.arange(ncomp), comp_node))
+    new_group = np.concatenate([[True], comp_node[order][1:] != comp_node[order][:-1]])
+    cracked = np.empty(ncomp, dtype=np.int64)
+    cracked[order[new_group]] = comp_node[order][new_group]
+    extra = order[~new_group]
+    cracked[extra] = num_nodes + np.arange(len(extra))
+    return cracked[label].reshape(nc, 3), num_nodes + len(extra)
+
+
+@dataclass(frozen=True)
+class FractureFaces:
+    """Fracture faces owned by this rank, with their orientation (local data).
+
+    Attributes:
+        facets: Local facet indices.
+        index: Global fracture face number (sorted by fracture, then arc length).
+        fracture: Fracture index of each face.
+        segment: Polyline segment of each face.
+        s: Arc length of the face midpoint from the fracture's first point (m).
+        midpoint: Face midpoints, ``(n, 2)`` (m).
+        normal: ``n⁺`` of each face, ``(n, 2)``.
+        length: Face length ``h_σ`` (m).
+        plus: ``(cell, local facet)`` on the ``+`` side (``n⁺`` points out of it), ``(n, 2)``.
+        minus: ``(cell, local facet)`` on the ``-`` side, ``(n, 2)``.
+    """
+
+    facets: npt.NDArray[np.int32]
+    index: npt.NDArray[np.int64]
+    fracture: npt.NDArray[np.int32]
+    segment: npt.NDArray[np.int32]
+    s: npt.NDArray[np.float64]
+    midpoint: npt.NDArray[np.float64]
+    normal: npt.NDArray[np.float64]
+    length: npt.NDArray[np.float64]
+    plus: npt.NDArray[np.int32]
+    minus: npt.NDArray[np.int32]
+
+    @property
+    def integration_entities(self) -> npt.NDArray[np.int32]:
+        """``[c⁺, f⁺, c⁻, f⁻]`` per face, the interior-facet integration entities."""
+        return np.hstack([self.plus, self.minus]).astype(np.int32)
+
+
+@dataclass
+class FracturedMesh:
+    """A connected mesh with fracture faces and the cracked topology of its displacement space.
+
+    Attributes:
+        msh: The connected mesh (ghosted by shared facet).
+        geometry: The plane geometry it was built from.
+        cracked: Topology with duplicated fracture vertices (same local cells as ``msh``).
+        fractures: Owned fracture faces.
+        fracture_facets_all: Owned and ghost fracture facets (local indices), for submeshes.
+        boundary_facets: Owned boundary facets (local indices).
+        boundary_edge: Domain polygon edge of each boundary facet.
+        num_fracture_faces: Global number of fracture faces.
+    """
+
+    msh: dolfinx.mesh.Mesh
+    geometry: PlaneGeometry
+    cracked: _cpp.mesh.Topology
+    fractures: FractureFaces
+    fracture_facets_all: npt.NDArray[np.int32]
+    boundary_facets: npt.NDArray[np.int32]
+    boundary_edge: npt.NDArray[np.int32]
+    num_fracture_faces: int
+
+    @property
+    def comm(self) -> MPI.Comm:
+        """The mesh communicator."""
+        return self.msh.comm
+
+    def boundary(self, edges: tuple[int, ...]) -> npt.NDArray[np.int32]:
+        """Owned boundary facets on the given domain polygon edges."""
+        return self.boundary_facets[np.isin(self.boundary_edge, edges)]
+
+
+def _owner_partitioner(owner: npt.NDArray[np.int32]) -> Callable:
+    """A shared-facet partitioner that sends input cell ``i`` to rank ``owner[i]``.
+
+    Used to place a process boundary exactly where a test wants it (e.g. on a fracture).
+    """
+
+    def part(comm, nparts, graph, ghosting):
+        offsets = graph.offsets
+        local = np.arange(len(offsets) - 1)
+        start = comm.exscan(len(local)) or 0
+        me = owner[start + local]
+        dest, dest_off = [], [0]
+        for i in local:
+            nbr = owner[graph.array[offsets[i] : offsets[i + 1]]]
+            ranks = [me[i]] + sorted(set(nbr.tolist()) - {me[i]})
+            dest += ranks
+            dest_off.append(len(dest))
+        return _cpp.graph.AdjacencyList_int32(
+            np.asarray(dest, dtype=np.int32), np.asarray(dest_off, dtype=np.int32)
+        )
+
+    return dolfinx.mesh.create_cell_partitioner(part, dolfinx.mesh.GhostMode.shared_facet, 2)
+
+
+def _local_entities(msh, dim, entities, values):
+    """Owned and ghost local entity indices and values of globally numbered input entities."""
+    ents, vals = distribute_entity_data(msh, dim, entities, values)
+    msh.topology.create_connectivity(dim, msh.topology.dim)
+    tags = dolfinx.mesh.meshtags_from_entities(
+        msh, dim, dolfinx.graph.adjacencylist(ents.astype(np.int32)), vals.astype(np.int32)
+    )
+    return tags.indices, tags.values
+
+
+def _scatter_rows(comm: MPI.Comm, rows: npt.NDArray | None, wanted: npt.NDArray[np.int64]):
+    """Give every rank the rows ``wanted`` of an array that lives on rank 0 (collective)."""
+    requests = comm.gather(wanted, root=0)
+    replies = [rows[r] for r in requests] if comm.rank == 0 else None
+    return comm.scatter(replies, root=0)
+
+
+def _facet_sides(msh, facets, normals):
+    """``(cell, local facet)`` on the ``+`` and ``-`` side of each facet for given normals."""
+    tdim = msh.topology.dim
+    f2c = msh.topology.connectivity(tdim - 1, tdim)
+    c2f = msh.topology.connectivity(tdim, tdim - 1)
+    x = msh.geometry.x[:, :2]
+    gdofs = msh.geometry.dofmap
+    fv = dolfinx.mesh.entities_to_geometry(msh, tdim - 1, facets)
+    mid = x[fv].mean(axis=1)
+    plus = np.empty((len(facets), 2), dtype=np.int32)
+    minus = np.empty((len(facets), 2), dtype=np.int32)
+    for i, f in enumerate(facets):
+        cells = f2c.links(f)
+        if len(cells) != 2:
+            raise RuntimeError(f"fracture facet {f} has {len(cells)} local cells (ghosting?)")
+        side = [(x[gdofs[c]].mean(axis=0) - mid[i]) @ normals[i] for c in cells]
+        cp, cm = (cells[0], cells[1]) if side[0] < side[1] else (cells[1], cells[0])
+        plus[i] = cp, np.flatnonzero(c2f.links(cp) == f)[0]
+        minus[i] = cm, np.flatnonzero(c2f.links(cm) == f)[0]
+    return mid, plus, minus
+
+
+def _cracked_topology(msh, cracked_rows, orig_cells_rows):
+    """Build the cracked topology with the local cells of ``msh`` (collective)."""
+    tdim = msh.topology.dim
+    imap = msh.topology.index_map(tdim)
+    num_local = imap.size_local + imap.num_ghosts
+    gnodes = msh.geometry.input_global_indices[msh.geometry.dofmap[:num_local]]
+    # Position of each local cell vertex in its input cell row
+    pos = np.argmax(orig_cells_rows[:, None, :] == gnodes[:, :, None], axis=2)
+    cracked = np.take_along_axis(cracked_rows, pos, axis=1)
+    # Process-boundary vertices: those on facets that appear once among owned cells
+    owned = cracked[: imap.size_local]
+    fac = np.sort(owned[:, _TRIANGLE_FACETS].reshape(-1, 2), axis=1)
+    uniq, counts = np.unique(fac, axis=0, return_counts=True)
+    boundary_vertices = np.unique(uniq[counts == 1])
+    orig = np.asarray(msh.topology.original_cell_index, dtype=np.int64)[:num_local]
+    topo = _cpp.mesh.create_topology(
+        msh.comm,
+        [msh.topology.cell_type],
+        [np.ascontiguousarray(cracked.ravel(), dtype=np.int64)],
+        [np.ascontiguousarray(orig)],
+        [np.asarray(imap.owners, dtype=np.int32)],
+        boundary_vertices.astype(np.int64),
+        1,
+    )
+    return topo
+
+
+def create_fractured_mesh(
+    comm: MPI.Comm,
+    geometry: PlaneGeometry,
+    arrays: MeshArrays | None,
+    owner: npt.NDArray[np.int32] | None = None,
+) -> FracturedMesh:
+    """Distribute a fractured mesh and build its cracked topology (collective).
+
+    Args:
+        comm: Communicator.
+        geometry: The plane geometry (on every rank).
+        arrays: The mesh arrays on rank 0 (ignored on other ranks).
+        owner: Optional rank of every input cell (rank 0 only), to impose a partition.
+
+    Returns:
+        The fractured mesh.
+    """
+    root = comm.rank == 0
+    if root:
+        cracked_rows, _ = crack_vertices(arrays.cells, arrays.fracture_facets, len(arrays.x))
+        face_data = (arrays.fracture_id, arrays.fracture_segment, arrays.fracture_s)
+    else:
+        cracked_rows, face_data = None, None
+    fid, fseg, fs = comm.bcast(face_data, root=0)
+    if owner is not None or comm.size > 1:
+        owner = comm.bcast(owner if root else None, root=0)
+    partitioner = (
+        _owner_partitioner(owner)
+        if owner is not None
+        else dolfinx.mesh.create_cell_partitioner(dolfinx.mesh.GhostMode.shared_facet, 2)
+    )
+    element = basix.ufl.element("Lagrange", "triangle", 1, shape=(2,))
+    cells = arrays.cells if root else np.empty((0, 3), dtype=np.int64)
+    x = arrays.x if root else np.empty((0, 2), dtype=np.float64)
+    msh = dolfinx.mesh.create_mesh(comm, cells, ufl.Mesh(element), x, partitioner)
+    tdim = msh.topology.dim
+    msh.topology.create_entities(tdim - 1)
+    msh.topology.create_connectivity(tdim - 1, tdim)
+    msh.topology.create_connectivity(tdim, tdim - 1)
+
+    imap = msh.topology.index_map(tdim)
+    orig = np.asarray(msh.topology.original_cell_index, dtype=np.int64)
+    orig = orig[: imap.size_local + imap.num_ghosts]
+    cracked_local = _scatter_rows(comm, cracked_rows, orig)
+    orig_rows = _scatter_rows(comm, arrays.cells if root else None, orig)
+    cracked = _cracked_topology(msh, cracked_local, orig_rows)
+
+    empty2 = np.empty((0, 2), dtype=np.int64)
+    ffacets = arrays.fracture_facets if root else empty2
+    findex = np.arange(len(ffacets), dtype=np.int32)
+    facets, index = _local_entities(msh, tdim - 1, ffacets, findex)
+    facets_all = np.sort(facets).astype(np.int32)
+    num_owned = msh.topology.index_map(tdim - 1).size_local
+    own = facets < num_owned
+    facets, index = facets[own], index[own].astype(np.int64)
+    normals = np.empty((len(facets), 2))
+    for k, pts in enumerate(geometry.fractures):
+        t = np.diff(pts, axis=0)
+        t /= np.linalg.norm(t, axis=1)[:, None]
+        sel = fid[index] == k
+        seg = fseg[index[sel]]
+        normals[sel] = np.column_stack([-t[seg, 1], t[seg, 0]])
+    mid, plus, minus = _facet_sides(msh, facets, normals)
+    fv = dolfinx.mesh.entities_to_geometry(msh, tdim - 1, facets)
+    xg = msh.geometry.x[:, :2]
+    length = np.linalg.norm(xg[fv[:, 1]] - xg[fv[:, 0]], axis=1) if len(facets) else np.empty(0)
+    faces = FractureFaces(
+        facets.astype(np.int32), index, fid[index], fseg[index], fs[index], mid, normals,
+        length, plus, minus,
+    )
+
+    bf = arrays.boundary_facets if root else empty2
+    be = arrays.boundary_edge if root else np.empty(0, dtype=np.int32)
+    bfacets, bedge = _local_entities(msh, tdim - 1, bf, be)
+    own = bfacets < num_owned
+    return FracturedMesh(
+        msh, geometry, cracked, faces, facets_all, bfacets[own].astype(np.int32), bedge[own].astype(np.int32),
+        int(len(fid)),
+    )
+
+
+def cracked_space(fm: FracturedMesh, degree: int, shape: tuple[int, ...] = (2,)):
+    """Lagrange space on ``fm.msh`` whose dofs are duplicated across the fractures (collective).
+
+    Args:
+        fm: The fractured mesh.
+        degree: Polynomial degree (1 or 2).
+        shape: Value shape, ``(2,)`` for displacements.
+
+    Returns:
+        A :class:`dolfinx.fem.FunctionSpace` with the cracked dofmap.
+    """
+    msh = fm.msh
+    ufl_e = basix.ufl.element("Lagrange", msh.basix_cell(), degree, shape=shape,
+                              dtype=msh.geometry.x.dtype)
+    element = dolfinx.fem.finiteelement(msh.topology.cell_type, ufl_e, msh.geometry.x.dtype)
+    for d in range(1, msh.topology.dim):
+        if element.basix_element.num_entity_dofs[d][0] > 0:
+            fm.cracked.create_entities(d)
+    dofmap = _cpp.fem.create_dofmap(msh.comm, fm.cracked, element._cpp_object)
+    cpp_space = _cpp.fem.FunctionSpace_float64(msh._cpp_object, element._cpp_object, dofmap)
+    return dolfinx.fem.FunctionSpace(msh, ufl_e, cpp_space)
+
+
+def fracture_measure(fm: FracturedMesh, metadata: dict | None = None) -> ufl.Measure:
+    """Interior-facet measure over the fracture faces with ``'+'`` the side ``n⁺`` points out of.
+
+    Use as ``dG(FRACTURE_TAG)``; ``n('+')`` is then ``n⁺`` and ``u('+') - u('-')`` the jump.
+    """
+    data = [(FRACTURE_TAG, fm.fractures.integration_entities.ravel())]
+    return ufl.Measure("dS", domain=fm.msh, subdomain_data=data, metadata=metadata or {})

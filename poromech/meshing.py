@@ -1,0 +1,226 @@
+"""Conforming triangle meshes of fractured polygons with gmsh (serial, on one rank).
+
+The fractures are embedded in the domain with the OpenCASCADE ``fragment`` operation, which
+splits curves at their crossings (T and X junctions) and where they touch the boundary, so the
+mesh is conforming to the whole network. Sizes are controlled near the fractures and near their
+end points; a refinement level ``m`` then splits every triangle into four, ``m`` times, so that a
+family ``m = 0, 1, 2, ...`` has ``4^m`` times the cells and ``2^m`` times the fracture faces.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from poromech.geometry import PlaneGeometry, arc_length_positions
+
+__all__ = ["MeshArrays", "MeshSizes", "generate_mesh"]
+
+
+@dataclass(frozen=True)
+class MeshSizes:
+    """Target element sizes (m).
+
+    Attributes:
+        size: Size away from the fractures.
+        fracture_size: Size along the fractures.
+        tip_size: Size at fracture end points.
+        transition: Distance over which the sizes blend into ``size``.
+        refinement: Number of uniform refinements after generation.
+    """
+
+    size: float
+    fracture_size: float
+    tip_size: float
+    transition: float
+    refinement: int = 0
+
+
+@dataclass(frozen=True)
+class MeshArrays:
+    """A mesh as plain arrays (input numbering).
+
+    Attributes:
+        x: Node coordinates, ``(num_nodes, 2)``.
+        cells: Triangle nodes, ``(num_cells, 3)``.
+        fracture_facets: Nodes of fracture faces, ``(num_faces, 2)``.
+        fracture_id: Fracture index of each fracture face.
+        fracture_segment: Polyline segment of each fracture face.
+        fracture_s: Arc length of each fracture face midpoint from the polyline start (m).
+        boundary_facets: Nodes of boundary faces, ``(num_bfaces, 2)``.
+        boundary_edge: Domain polygon edge index of each boundary face.
+    """
+
+    x: npt.NDArray[np.float64]
+    cells: npt.NDArray[np.int64]
+    fracture_facets: npt.NDArray[np.int64]
+    fracture_id: npt.NDArray[np.int32]
+    fracture_segment: npt.NDArray[np.int32]
+    fracture_s: npt.NDArray[np.float64]
+    boundary_facets: npt.NDArray[np.int64]
+    boundary_edge: npt.NDArray[np.int32]
+
+
+@contextlib.contextmanager
+def _gmsh_session():
+    """Initialize gmsh quietly and finalize it whatever happens."""
+    import gmsh
+
+    gmsh.initialize(interruptible=False)
+    gmsh.option.setNumber("General.Terminal", 0)
+    gmsh.option.setNumber("General.Verbosity", 1)
+    try:
+        yield gmsh
+    finally:
+        gmsh.finalize()
+
+
+def _classify_boundary(gmsh, geo: PlaneGeometry) -> dict[int, list[int]]:
+    """Map each domain polygon edge to the model curves lying on it."""
+    surfaces = gmsh.model.getEntities(2)
+    curves = {abs(t) for _, t in gmsh.model.getBoundary(surfaces, combined=True, oriented=False)}
+    n = len(geo.boundary)
+    a, b = geo.boundary, np.roll(geo.boundary, -1, axis=0)
+    out: dict[int, list[int]] = {i: [] for i in range(n)}
+    tol = 1e-7 * geo.diameter
+    for c in sorted(curves):
+        lo, hi = gmsh.model.getParametrizationBounds(1, c)
+        mid = np.asarray(gmsh.model.getValue(1, c, [0.5 * (lo[0] + hi[0])]))[:2]
+        ab = b - a
+        s = np.clip(np.einsum("ij,ij->i", mid - a, ab) / np.einsum("ij,ij->i", ab, ab), 0, 1)
+        dist = np.linalg.norm(a + s[:, None] * ab - mid, axis=1)
+        i = int(np.argmin(dist))
+        if dist[i] > tol:
+            raise RuntimeError(f"boundary curve {c} is not on the domain polygon")
+        out[i].append(c)
+    return out
+
+
+def _build_model(gmsh, geo: PlaneGeometry):
+    """Create the OCC model; return the boundary curves, fracture curves and their owners."""
+    occ = gmsh.model.occ
+    n = len(geo.boundary)
+    bpts = [occ.addPoint(*p, 0.0) for p in geo.boundary]
+    blines = [occ.addLine(bpts[i], bpts[(i + 1) % n]) for i in range(n)]
+    surf = occ.addPlaneSurface([occ.addCurveLoop(blines)])
+    flines, owners = [], []
+    for k, pts in enumerate(geo.fractures):
+        fpts = [occ.addPoint(*p, 0.0) for p in pts]
+        for i in range(len(pts) - 1):
+            flines.append(occ.addLine(fpts[i], fpts[i + 1]))
+            owners.append((k, i))
+    _, out_map = occ.fragment([(2, surf)], [(1, f) for f in flines])
+    occ.synchronize()
+    fracture_curves = {j: [t for d, t in out_map[1 + j] if d == 1] for j in range(len(flines))}
+    return _classify_boundary(gmsh, geo), fracture_curves, owners
+
+
+def _size_fields(gmsh, fracture_curves, sizes: MeshSizes) -> None:
+    """Background size field: min of thresholds on fracture and fracture-end distances."""
+    field = gmsh.model.mesh.field
+    curves = sorted({c for cs in fracture_curves.values() for c in cs})
+    fields = []
+    if curves:
+        d = field.add("Distance")
+        field.setNumbers(d, "CurvesList", curves)
+        field.setNumber(d, "Sampling", 200)
+        th = field.add("Threshold")
+        field.setNumber(th, "InField", d)
+        field.setNumber(th, "SizeMin", sizes.fracture_size)
+        field.setNumber(th, "SizeMax", sizes.size)
+        field.setNumber(th, "DistMin", 0.0)
+        field.setNumber(th, "DistMax", sizes.transition)
+        fields.append(th)
+        dt = field.add("Distance")
+        ends = gmsh.model.getBoundary([(1, c) for c in curves], combined=False, oriented=False)
+        field.setNumbers(dt, "PointsList", sorted({abs(t) for _, t in ends}))
+        tt = field.add("Threshold")
+        field.setNumber(tt, "InField", dt)
+        field.setNumber(tt, "SizeMin", sizes.tip_size)
+        field.setNumber(tt, "SizeMax", sizes.size)
+        field.setNumber(tt, "DistMin", 0.0)
+        field.setNumber(tt, "DistMax", sizes.transition)
+        fields.append(tt)
+    const = field.add("MathEval")
+    field.setString(const, "F", repr(float(sizes.size)))
+    fields.append(const)
+    fmin = field.add("Min")
+    field.setNumbers(fmin, "FieldsList", fields)
+    field.setAsBackgroundMesh(fmin)
+    gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 0)
+    gmsh.option.setNumber("Mesh.MeshSizeFromPoints", 0)
+    gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", 0)
+
+
+def _line_elements(gmsh, curve: int) -> npt.NDArray[np.int64]:
+    """Node tags of the 2-node line elements on a curve, shape ``(k, 2)``."""
+    types, _, nodes = gmsh.model.mesh.getElements(1, curve)
+    out = [np.asarray(nd, dtype=np.int64).reshape(-1, 2) for ty, nd in zip(types, nodes) if ty == 1]
+    return np.concatenate(out) if out else np.empty((0, 2), dtype=np.int64)
+
+
+def generate_mesh(geo: PlaneGeometry, sizes: MeshSizes) -> MeshArrays:
+    """Mesh a fractured polygon with gmsh (call on one rank only).
+
+    Args:
+        geo: The checked geometry.
+        sizes: Size control and refinement level.
+
+    Returns:
+        The mesh as arrays with fracture faces classified by fracture, segment and arc length.
+    """
+    with _gmsh_session() as gmsh:
+        gmsh.model.add("poromech")
+        bcurves, fcurves, owners = _build_model(gmsh, geo)
+        _size_fields(gmsh, fcurves, sizes)
+        gmsh.option.setNumber("Mesh.Algorithm", 6)
+        gmsh.model.mesh.generate(2)
+        for _ in range(sizes.refinement):
+            gmsh.model.mesh.refine()
+        tags, coords, _ = gmsh.model.mesh.getNodes()
+        x = np.asarray(coords).reshape(-1, 3)[:, :2]
+        index = np.full(int(tags.max()) + 1, -1, dtype=np.int64)
+        index[tags] = np.arange(len(tags))
+        types, _, nodes = gmsh.model.mesh.getElements(2)
+        tri = [np.asarray(nd, dtype=np.int64).reshape(-1, 3) for ty, nd in zip(types, nodes)
+               if ty == 2]
+        cells = index[np.concatenate(tri)]
+        ffacets, fid, fseg = [], [], []
+        for j, curves in fcurves.items():
+            for c in curves:
+                e = index[_line_elements(gmsh, c)]
+                ffacets.append(e)
+                fid.append(np.full(len(e), owners[j][0], dtype=np.int32))
+                fseg.append(np.full(len(e), owners[j][1], dtype=np.int32))
+        bfacets, bedge = [], []
+        for i, curves in bcurves.items():
+            for c in curves:
+                e = index[_line_elements(gmsh, c)]
+                bfacets.append(e)
+                bedge.append(np.full(len(e), i, dtype=np.int32))
+    empty2 = np.empty((0, 2), dtype=np.int64)
+    ff = np.concatenate(ffacets) if ffacets else empty2
+    fid = np.concatenate(fid) if fid else np.empty(0, dtype=np.int32)
+    fseg = np.concatenate(fseg) if fseg else np.empty(0, dtype=np.int32)
+    # Keep only the nodes used by triangles (gmsh may keep geometry points)
+    used = np.unique(cells)
+    renum = np.full(len(x), -1, dtype=np.int64)
+    renum[used] = np.arange(len(used))
+    x, cells, ff = x[used], renum[cells], renum[ff]
+    bf = renum[np.concatenate(bfacets)] if bfacets else empty2
+    be = np.concatenate(bedge) if bedge else np.empty(0, dtype=np.int32)
+    # Counter-clockwise triangles
+    d1, d2 = x[cells[:, 1]] - x[cells[:, 0]], x[cells[:, 2]] - x[cells[:, 0]]
+    cw = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0] < 0
+    cells[cw] = cells[cw][:, [0, 2, 1]]
+    s = np.empty(len(ff))
+    mid = 0.5 * (x[ff[:, 0]] + x[ff[:, 1]])
+    for k, pts in enumerate(geo.fractures):
+        sel = fid == k
+        s[sel] = arc_length_positions(pts, fseg[sel], mid[sel])
+    # Sort fracture faces by (fracture, arc length): the global fracture face numbering
+    order = np.lexsort((s, fid))
+    return MeshArrays(x, cells, ff[order], fid[order], fseg[order], s[order], bf, be)

@@ -1,0 +1,349 @@
+"""Semi-smooth Newton for contact problems: a PETSc SNES of type ``python``.
+
+PETSc runs the outer loop (convergence test, monitors, ``-mech_snes_*`` options); poromech's
+``step`` computes the generalized Newton direction and applies its own line search:
+
+* **Non-monotone acceptance of the full step.** A full step is accepted if the residual norm
+  is below ``(1 - c)`` times the largest of the last ``M`` accepted norms. Near stick/slip and
+  open/contact switches the residual is only piecewise smooth; requiring monotone decrease
+  there (as ``bt`` does) cuts good steps that change the active set, after which Newton
+  finishes in one or two iterations.
+* **Cycle guard.** A full step that brings back the residual norm of two iterations ago (the
+  ping-pong between two active sets typical of friction) is not accepted as non-monotone.
+* **Safeguarded backtracking** by quadratic interpolation of ``‖F‖²`` with monotone Armijo,
+  down to ``α_min``.
+* **Watchdog.** When no trial step decreases the residual, the trial with the smallest residual
+  is taken anyway (the active set usually changes and Newton recovers); ``max_watchdog``
+  consecutive such steps end the solve with ``DIVERGED_LINE_SEARCH``.
+
+The Jacobian of the 2D problems is piecewise constant in the contact states, so the factorization
+is reused whenever the assembled Jacobian is bitwise unchanged (``reuse_jacobian``), and a
+residual evaluated during the line search is not assembled again for the accepted iterate.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import dolfinx_solver  # noqa: F401
+import dolfinx
+import numpy as np
+from dolfinx import fem
+from dolfinx.fem.petsc import assemble_residual, assign, create_matrix, create_vector
+from mpi4py import MPI
+from petsc4py import PETSc
+
+__all__ = ["ConvergenceError", "NewtonRecord", "SemiSmoothNewton", "DEFAULT_OPTIONS"]
+
+log = logging.getLogger("poromech")
+
+#: Defaults for the mechanics SNES/KSP (prefix ``mech_``); scene ``solver.petsc`` and the command
+#: line override them.
+DEFAULT_OPTIONS: dict[str, object] = {
+    "snes_type": "python",
+    "snes_rtol": 1e-10,
+    "snes_atol": 1e-30,
+    "snes_stol": 0.0,
+    "snes_max_it": 50,
+    "snes_linesearch_type": "basic",
+    "ksp_type": "preonly",
+    "pc_type": "lu",
+    "pc_factor_mat_solver_type": "mumps",
+}
+
+_REASONS = {v: k for k, v in vars(PETSc.SNES.ConvergedReason).items() if not k.startswith("_")}
+
+
+class ConvergenceError(RuntimeError):
+    """A nonlinear solve that did not converge; carries its :class:`NewtonRecord`."""
+
+    def __init__(self, message: str, record: NewtonRecord):
+        super().__init__(message)
+        self.record = record
+
+
+@dataclass
+class NewtonRecord:
+    """What happened in one nonlinear solve (identical on every rank)."""
+
+    iterations: int = 0
+    reason: str = ""
+    converged: bool = False
+    residuals: list[float] = field(default_factory=list)
+    steps: list[float] = field(default_factory=list)
+    active_set_changes: list[int] = field(default_factory=list)
+    linear_iterations: int = 0
+    factorizations: int = 0
+    residual_evaluations: int = 0
+    time_assembly: float = 0.0
+    time_linear: float = 0.0
+
+    def as_dict(self) -> dict:
+        """JSON-ready summary."""
+        return {k: v for k, v in self.__dict__.items()}
+
+
+@dataclass(frozen=True)
+class LineSearchParameters:
+    """Constants of the ``contact`` line search."""
+
+    armijo: float = 1e-4
+    memory: int = 4
+    alpha_min: float = 1.0 / 64.0
+    max_watchdog: int = 5
+    cycle_tolerance: float = 1e-8
+
+
+class SemiSmoothNewton:
+    """Owns the SNES, matrices and vectors of one nonlinear block problem.
+
+    Args:
+        F: Compiled residual blocks.
+        J: Compiled Jacobian blocks.
+        unknowns: Functions in block order.
+        bcs: Dirichlet conditions.
+        prefix: PETSc options prefix (ending in ``_``).
+        options: Options merged over :data:`DEFAULT_OPTIONS` (scene values).
+        line_search: ``"contact"`` or a PETSc line search type.
+        reuse_jacobian: Reuse the factorization while the Jacobian is bitwise unchanged.
+        states: Callable returning the contact state codes of the owned faces at the current
+            unknowns (for the active-set change count), or None.
+    """
+
+    def __init__(
+        self,
+        F: Sequence[fem.Form],
+        J: Sequence[Sequence[fem.Form | None]],
+        unknowns: Sequence[fem.Function],
+        bcs: Sequence[fem.DirichletBC],
+        prefix: str = "mech_",
+        options: dict | None = None,
+        line_search: str = "contact",
+        reuse_jacobian: bool = True,
+        states: Callable[[], np.ndarray] | None = None,
+    ):
+        self.F, self.J, self.u, self.bcs = list(F), [list(r) for r in J], list(unknowns), list(bcs)
+        self.comm = self.u[0].function_space.mesh.comm
+        self.A = create_matrix(self.J)
+        self.b = create_vector([f.function_space for f in self.u], kind="mpi")
+        self.x = create_vector([f.function_space for f in self.u], kind="mpi")
+        self._blocks = self.b.getAttr("_blocks")
+        self._trial = self.x.duplicate()
+        self._trial_f = self.b.duplicate()
+        self._cache_x = self.x.duplicate()
+        self._cache_f = self.b.duplicate()
+        self._cache_valid = False
+        self._values = None  # Jacobian values at the last factorization
+        self.line_search = line_search
+        self.ls = LineSearchParameters()
+        self.reuse_jacobian = reuse_jacobian
+        self.states = states
+        self.reference_norm = 0.0
+        self._forced_reason = None
+        self._last_states = None
+        self.prefix = prefix
+        self.snes = self._create_snes(prefix, options or {})
+        self.record = NewtonRecord()
+
+    # -- PETSc objects ----------------------------------------------------------------------
+    def _create_snes(self, prefix: str, options: dict) -> PETSc.SNES:
+        snes = PETSc.SNES().create(self.comm)
+        snes.setOptionsPrefix(prefix)
+        merged = {**DEFAULT_OPTIONS, **options}
+        if self.line_search != "contact":
+            merged.update(snes_type="newtonls", snes_linesearch_type=self.line_search)
+        opts = PETSc.Options()
+        opts.prefixPush(prefix)
+        pushed = [k for k, v in merged.items() if v is not None and not opts.hasName(k)]
+        for k in pushed:  # options already in the database (command line) win
+            opts[k] = merged[k]
+        opts.prefixPop()
+        snes.setFunction(self._residual, self.b)
+        snes.setJacobian(self._jacobian, self.A, self.A)
+        snes.setFromOptions()
+        if snes.getType() == PETSc.SNES.Type.PYTHON:
+            snes.setPythonContext(_Step(self))
+        snes.setConvergenceTest(self._converged)
+        snes.setMonitor(self._monitor)
+        self.A.setOptionsPrefix(f"{prefix}A_")
+        opts.prefixPush(prefix)
+        for k in pushed:
+            opts.delValue(k)
+        opts.prefixPop()
+        return snes
+
+    def destroy(self) -> None:
+        """Free PETSc objects."""
+        for obj in (self.snes, self.A, self.b, self.x, self._trial, self._trial_f, self._cache_x,
+                    self._cache_f):
+            obj.destroy()
+
+    # -- callbacks --------------------------------------------------------------------------
+    def _residual(self, snes, x, b) -> None:
+        t0 = time.perf_counter()
+        if self._cache_valid:
+            self._cache_x.axpy(-1.0, x)
+            same = self._cache_x.norm(PETSc.NormType.NORM_INFINITY) == 0.0
+            self._cache_x.axpy(1.0, x)
+            if same:
+                self._cache_f.copy(b)
+                self.record.time_assembly += time.perf_counter() - t0
+                return
+        assemble_residual(snes, x, b, self.u, self.F, self.J, self.bcs, _blocks=self._blocks)
+        x.copy(self._cache_x)
+        b.copy(self._cache_f)
+        self._cache_valid = True
+        self.record.residual_evaluations += 1
+        self.record.time_assembly += time.perf_counter() - t0
+
+    def _jacobian(self, snes, x, A, P) -> None:
+        t0 = time.perf_counter()
+        dolfinx.la.petsc._ghost_update(x, PETSc.InsertMode.INSERT, PETSc.ScatterMode.FORWARD)
+        assign(x, self.u)
+        A.zeroEntries()
+        dolfinx.fem.petsc.assemble_matrix(A, self.J, self.bcs, diag=1.0)
+        A.assemble()
+        self.record.time_assembly += time.perf_counter() - t0
+
+    def jacobian_unchanged(self) -> bool:
+        """True when the Jacobian equals the one last factorized (collective)."""
+        values = self.A.getValuesCSR()[2]
+        same = self._values is not None and np.array_equal(values, self._values)
+        same = self.comm.allreduce(bool(same), op=MPI.LAND)
+        if not same:
+            self._values = values.copy()
+        return same
+
+    def _converged(self, snes, it, norms):
+        xnorm, ynorm, fnorm = norms
+        rtol, atol, stol, max_it = snes.getTolerances()
+        if self._forced_reason is not None:
+            return self._forced_reason
+        if it == 0:
+            self.reference_norm = max(self.reference_norm, fnorm)
+        R = PETSc.SNES.ConvergedReason
+        if not np.isfinite(fnorm):
+            return R.DIVERGED_FNORM_NAN
+        if fnorm <= atol:
+            return R.CONVERGED_FNORM_ABS
+        if fnorm <= rtol * self.reference_norm:
+            return R.CONVERGED_FNORM_RELATIVE
+        if it > 0 and stol > 0 and ynorm <= stol * xnorm:
+            return R.CONVERGED_SNORM_RELATIVE
+        if it >= max_it:
+            return R.DIVERGED_MAX_IT
+        return R.ITERATING
+
+    def _monitor(self, snes, it, fnorm) -> None:
+        self.record.residuals.append(float(fnorm))
+        if self.states is not None:
+            x = snes.getSolution()
+            dolfinx.la.petsc._ghost_update(x, PETSc.InsertMode.INSERT, PETSc.ScatterMode.FORWARD)
+            assign(x, self.u)
+            s = self.states()
+            if self._last_states is not None and it > 0:
+                self.record.active_set_changes.append(
+                    int(self.comm.allreduce(int(np.count_nonzero(s != self._last_states))))
+                )
+            self._last_states = s
+        log.debug("%sNewton %d: |F| = %.3e", self.prefix, it, fnorm)
+
+    # -- solve ------------------------------------------------------------------------------
+    def solve(self) -> NewtonRecord:
+        """Solve from the current unknowns; update them in place (collective).
+
+        Returns:
+            The record of this solve; ``record.converged`` tells whether it converged.
+        """
+        self.record = NewtonRecord()
+        self._last_states = None
+        self._cache_valid = False
+        self._history: list[float] = []
+        self._watchdog = 0
+        self._forced_reason = None
+        assign(self.u, self.x)
+        self.snes.solve(None, self.x)
+        dolfinx.la.petsc._ghost_update(self.x, PETSc.InsertMode.INSERT, PETSc.ScatterMode.FORWARD)
+        assign(self.x, self.u)
+        r = self.record
+        reason = self.snes.getConvergedReason()
+        r.reason = _REASONS.get(reason, str(reason))
+        r.converged = reason > 0
+        r.iterations = self.snes.getIterationNumber()
+        r.linear_iterations = self.snes.getLinearSolveIterations()
+        return r
+
+
+class _Step:
+    """Python context of the SNES: Newton direction, Jacobian reuse and the line search."""
+
+    def __init__(self, solver: SemiSmoothNewton):
+        self.s = solver
+
+    def step(self, snes, X, F, Y) -> None:
+        s = self.s
+        A = s.A
+        snes.computeJacobian(X, A, A)
+        ksp = snes.getKSP()
+        reuse = s.reuse_jacobian and s.jacobian_unchanged()
+        if not s.reuse_jacobian:
+            s._values = None
+        ksp.setOperators(A, A)
+        ksp.getPC().setReusePreconditioner(reuse)
+        if not reuse:
+            s.record.factorizations += 1
+        t0 = time.perf_counter()
+        ksp.solve(F, Y)
+        s.record.time_linear += time.perf_counter() - t0
+        if ksp.getConvergedReason() < 0:
+            s._forced_reason = PETSc.SNES.ConvergedReason.DIVERGED_LINEAR_SOLVE
+            s._values = None
+            Y.set(0.0)
+            return
+        alpha = self._line_search(snes, X, F, Y)
+        s.record.steps.append(alpha)
+        if alpha != 1.0:
+            Y.scale(alpha)
+
+    def _norm_at(self, snes, X, Y, alpha: float) -> float:
+        s = self.s
+        s._trial.waxpy(-alpha, Y, X)
+        snes.computeFunction(s._trial, s._trial_f)
+        return s._trial_f.norm()
+
+    def _line_search(self, snes, X, F, Y) -> float:
+        s, p = self.s, self.s.ls
+        f0 = F.norm()
+        hist = s._history
+        hist.append(f0)
+        f1 = self._norm_at(snes, X, Y, 1.0)
+        recent = max(hist[-p.memory:])
+        cycling = len(hist) >= 2 and abs(f1 - hist[-2]) <= p.cycle_tolerance * hist[-2]
+        if np.isfinite(f1) and (f1 <= (1 - p.armijo) * f0 or
+                                (f1 <= (1 - p.armijo) * recent and not cycling)):
+            s._watchdog = 0
+            return 1.0
+        alpha, fa = 1.0, f1
+        best = (f1 if np.isfinite(f1) else np.inf, 1.0)
+        while alpha > p.alpha_min:
+            if np.isfinite(fa):
+                # minimizer of the quadratic through φ(0)=f0², φ'(0)=-2f0², φ(α)=fa²
+                denom = fa**2 - f0**2 + 2 * alpha * f0**2
+                trial = alpha**2 * f0**2 / denom if denom > 0 else 0.5 * alpha
+                alpha = float(np.clip(trial, 0.1 * alpha, 0.5 * alpha))
+            else:
+                alpha *= 0.5
+            fa = self._norm_at(snes, X, Y, alpha)
+            if np.isfinite(fa) and fa < best[0]:
+                best = (fa, alpha)
+            if np.isfinite(fa) and fa <= (1 - p.armijo * alpha) * f0:
+                s._watchdog = 0
+                return alpha
+        s._watchdog += 1
+        if s._watchdog > p.max_watchdog or not np.isfinite(best[0]):
+            s._forced_reason = PETSc.SNES.ConvergedReason.DIVERGED_LINE_SEARCH
+            return 0.0
+        return best[1]
