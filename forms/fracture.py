@@ -49,8 +49,9 @@ def slip(w, n, w_ref=None):
 
 
 def negative_part(x):
-    """``[x]_R- = min(0, x)``."""
-    return ufl.min_value(x, 0.0)
+    """``[x]_R- = min(0, x)``; at ``x = 0`` the generalized derivative is that of the contact
+    branch, so a Newton iteration started from rest begins with the fractures closed."""
+    return ufl.conditional(ufl.le(x, 0.0), x, 0.0)
 
 
 def positive_part(x):
@@ -59,8 +60,12 @@ def positive_part(x):
 
 
 def ball_projection(x, radius):
-    """``[x]_α``: projection of a 2D tangential scalar on ``[-α, α]`` (α >= 0)."""
-    return ufl.max_value(ufl.min_value(x, radius), -radius)
+    """``[x]_α``: projection of a 2D tangential scalar on ``[-α, α]`` (α >= 0).
+
+    On the boundary ``|x| = α`` the generalized derivative is that of the stick branch.
+    """
+    return ufl.conditional(ufl.le(x, radius), ufl.conditional(ufl.ge(x, -radius), x, -radius),
+                           radius)
 
 
 @dataclass(frozen=True)

@@ -22,6 +22,25 @@ __all__ = ["Expression", "ExpressionError", "compile_expression"]
 #: Variables every expression may use: coordinates (m) and time (s).
 VARIABLES = ("x", "y", "t")
 
+def _analytic_functions() -> dict[str, Callable]:
+    """Exact plane-strain displacement fields (``poromech.analytic``) usable in expressions."""
+    from poromech import analytic
+
+    def sneddon(k):
+        return lambda x, y, a, p, E, nu: analytic.sneddon_displacement(x, y, a, p, E, nu)[k]
+
+    def inclined(k):
+        return lambda x, y, b, psi, s, F, E, nu: analytic.inclined_crack_displacement(
+            x, y, b, psi, s, F, E, nu)[k]
+
+    return {
+        "sneddon_ux": sneddon(0),
+        "sneddon_uy": sneddon(1),
+        "inclined_crack_ux": inclined(0),
+        "inclined_crack_uy": inclined(1),
+    }
+
+
 _FUNCTIONS: dict[str, Callable] = {
     "sin": np.sin,
     "cos": np.cos,
@@ -43,7 +62,10 @@ _FUNCTIONS: dict[str, Callable] = {
     "where": np.where,
     "clip": np.clip,
     "hypot": np.hypot,
+    "radians": np.radians,
+    "degrees": np.degrees,
 }
+_FUNCTIONS.update(_analytic_functions())
 _CONSTANTS = {"pi": math.pi, "e": math.e}
 
 _BINOPS = {

@@ -139,6 +139,8 @@ class FracturedMesh:
         msh: The connected mesh (ghosted by shared facet).
         geometry: The plane geometry it was built from.
         cracked: Topology with duplicated fracture vertices (same local cells as ``msh``).
+        cracked_cells: Cracked (duplicated) global vertex ids of the local cells, in the vertex
+            order of ``msh`` (owned then ghost cells), ``(num_local_cells, 3)``.
         fractures: Owned fracture faces.
         fracture_facets_all: Owned and ghost fracture facets (local indices), for submeshes.
         boundary_facets: Owned boundary facets (local indices).
@@ -149,6 +151,7 @@ class FracturedMesh:
     msh: dolfinx.mesh.Mesh
     geometry: PlaneGeometry
     cracked: _cpp.mesh.Topology
+    cracked_cells: npt.NDArray[np.int64]
     fractures: FractureFaces
     fracture_facets_all: npt.NDArray[np.int32]
     boundary_facets: npt.NDArray[np.int32]
@@ -252,7 +255,7 @@ def _cracked_topology(msh, cracked_rows, orig_cells_rows):
         boundary_vertices.astype(np.int64),
         1,
     )
-    return topo
+    return topo, cracked
 
 
 def create_fractured_mesh(
@@ -300,7 +303,7 @@ def create_fractured_mesh(
     orig = orig[: imap.size_local + imap.num_ghosts]
     cracked_local = _scatter_rows(comm, cracked_rows, orig)
     orig_rows = _scatter_rows(comm, arrays.cells if root else None, orig)
-    cracked = _cracked_topology(msh, cracked_local, orig_rows)
+    cracked, cracked_cells = _cracked_topology(msh, cracked_local, orig_rows)
 
     empty2 = np.empty((0, 2), dtype=np.int64)
     ffacets = arrays.fracture_facets if root else empty2
@@ -331,7 +334,7 @@ def create_fractured_mesh(
     bfacets, bedge = _local_entities(msh, tdim - 1, bf, be)
     own = bfacets < num_owned
     return FracturedMesh(
-        msh, geometry, cracked, faces, facets_all, bfacets[own].astype(np.int32), bedge[own].astype(np.int32),
+        msh, geometry, cracked, cracked_cells, faces, facets_all, bfacets[own].astype(np.int32), bedge[own].astype(np.int32),
         int(len(fid)),
     )
 

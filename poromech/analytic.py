@@ -1,0 +1,130 @@
+"""Closed-form plane-strain solutions for verification (NumPy, vectorized).
+
+Cracks are straight, centred at the origin, in an infinite plane. The displacement fields are
+exact everywhere (Westergaard stress functions), so a finite box with these values imposed on its
+boundary reproduces the infinite-plane solution and the error is pure discretization error.
+
+* Sneddon (1946): a crack of half-length ``a`` along the x axis, opened by a uniform internal
+  pressure ``p``: opening ``w(x) = 4 (1 - ν²) p / E · sqrt(a² - x²)``.
+* Inclined crack under uniaxial remote compression ``σ`` along the y axis, at angle ``ψ`` to it,
+  with Coulomb friction ``F = tan φ`` (Phan et al. 2003; Franceschini et al. 2020): the crack is
+  closed with normal traction ``t_N = -σ sin²ψ`` and, when ``cos ψ - F sin ψ > 0``, slips by
+  ``g_T(ξ) = 4 (1 - ν²)/E · σ sin ψ (cos ψ - F sin ψ) · sqrt(b² - (b - ξ)²)``, ``ξ ∈ [0, 2b]``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+__all__ = [
+    "inclined_crack_displacement",
+    "inclined_crack_frame",
+    "inclined_crack_slip",
+    "inclined_crack_slip_field",
+    "sneddon_displacement",
+    "sneddon_opening",
+]
+
+
+def _sqrt_cut(z: npt.NDArray[np.complex128], a: float) -> npt.NDArray[np.complex128]:
+    """``sqrt(z² - a²)`` with its branch cut on ``[-a, a]`` and ``~ z`` at infinity."""
+    return np.sqrt(z - a) * np.sqrt(z + a)
+
+
+def _z(x, y) -> npt.NDArray[np.complex128]:
+    """Complex coordinate; points on the crack line are taken on the upper face."""
+    y = np.asarray(y, dtype=np.float64)
+    y = np.where(y == 0.0, 0.0, y)  # -0.0 → +0.0: the upper face
+    return np.asarray(x, dtype=np.float64) + 1j * y
+
+
+def _elastic(E: float, nu: float) -> tuple[float, float]:
+    """Shear modulus μ and plane-strain Kolosov constant κ = 3 - 4ν."""
+    return E / (2 * (1 + nu)), 3 - 4 * nu
+
+
+def sneddon_opening(x, a: float, p: float, E: float, nu: float):
+    """Opening ``w = -[[u]]_n`` (m) of Sneddon's pressurized crack at abscissa ``x``."""
+    x = np.asarray(x, dtype=np.float64)
+    return 4 * (1 - nu**2) * p / E * np.sqrt(np.clip(a**2 - x**2, 0.0, None))
+
+
+def sneddon_displacement(x, y, a: float, p: float, E: float, nu: float):
+    """Displacement ``(u_x, u_y)`` (m) around Sneddon's crack (mode I Westergaard field).
+
+    ``Z = p (z / sqrt(z² - a²) - 1)``, ``Ẑ = p (sqrt(z² - a²) - z)``,
+    ``2μ u_x = (κ-1)/2 Re Ẑ - y Im Z``, ``2μ u_y = (κ+1)/2 Im Ẑ - y Re Z``.
+    """
+    mu, kappa = _elastic(E, nu)
+    z = _z(x, y)
+    s = _sqrt_cut(z, a)
+    with np.errstate(all="ignore"):
+        Z = np.where(s == 0, 0.0, p * (z / s - 1.0))
+    Zh = p * (s - z)
+    yy = np.asarray(y, dtype=np.float64)
+    ux = ((kappa - 1) / 2 * Zh.real - yy * Z.imag) / (2 * mu)
+    uy = ((kappa + 1) / 2 * Zh.imag - yy * Z.real) / (2 * mu)
+    return ux, uy
+
+
+def _mode2(x, y, a: float, tau: float, E: float, nu: float):
+    """Mode II field of a crack on the x axis loaded by a uniform shear ``tau`` on its faces."""
+    mu, kappa = _elastic(E, nu)
+    z = _z(x, y)
+    s = _sqrt_cut(z, a)
+    with np.errstate(all="ignore"):
+        Z = np.where(s == 0, 0.0, tau * (z / s - 1.0))
+    Zh = tau * (s - z)
+    yy = np.asarray(y, dtype=np.float64)
+    ux = ((kappa + 1) / 2 * Zh.imag + yy * Z.real) / (2 * mu)
+    uy = (-(kappa - 1) / 2 * Zh.real - yy * Z.imag) / (2 * mu)
+    return ux, uy
+
+
+def inclined_crack_frame(psi: float) -> tuple[npt.NDArray, npt.NDArray]:
+    """Unit tangent ``t`` (along the crack) and normal ``n = (-t_y, t_x)`` for angle ``ψ`` (rad)
+    between the crack and the compression (y) axis. The crack runs from ``-b t`` to ``b t``."""
+    t = np.array([np.sin(psi), np.cos(psi)])
+    return t, np.array([-t[1], t[0]])
+
+
+def _effective_shear(psi: float, sigma: float, friction: float) -> float:
+    """Shear released by slip, ``σ sin ψ (cos ψ - F sin ψ)``, or 0 when the crack sticks."""
+    return max(sigma * np.sin(psi) * (np.cos(psi) - friction * np.sin(psi)), 0.0)
+
+
+def inclined_crack_slip(xi, b: float, psi: float, sigma: float, friction: float, E: float,
+                        nu: float):
+    """Slip magnitude ``g_T(ξ)`` (m) at distance ``ξ`` from the crack's first end."""
+    xi = np.asarray(xi, dtype=np.float64)
+    tau = _effective_shear(psi, sigma, friction)
+    return 4 * (1 - nu**2) / E * tau * np.sqrt(np.clip(b**2 - (b - xi) ** 2, 0.0, None))
+
+
+def inclined_crack_slip_field(x, y, b: float, psi: float, sigma: float, friction: float,
+                              E: float, nu: float):
+    """The part of the displacement (m) due to slip: a mode II field in the crack frame, whose
+    sign is that of the slip relaxing the remote shear. Zero when the crack sticks."""
+    x = np.asarray(x, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    tau = _effective_shear(psi, sigma, friction)
+    if tau == 0.0:
+        return np.zeros_like(x), np.zeros_like(y)
+    t, n = inclined_crack_frame(psi)
+    xl, yl = x * t[0] + y * t[1], x * n[0] + y * n[1]  # crack-local coordinates
+    remote_shear = -sigma * t[1] * n[1]  # t·σn of the remote field on the crack plane
+    vx, vy = _mode2(xl, yl, b, np.sign(remote_shear) * tau, E, nu)
+    return vx * t[0] + vy * n[0], vx * t[1] + vy * n[1]
+
+
+def inclined_crack_displacement(x, y, b: float, psi: float, sigma: float, friction: float,
+                                E: float, nu: float):
+    """Displacement (m) of the plane under remote uniaxial compression ``σ`` (Pa) along y,
+    with the inclined frictional crack: uniform plane-strain field + slip field."""
+    x = np.asarray(x, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    exx = (1 + nu) * nu * sigma / E
+    eyy = -(1 + nu) * (1 - nu) * sigma / E
+    vx, vy = inclined_crack_slip_field(x, y, b, psi, sigma, friction, E, nu)
+    return exx * x + vx, eyy * y + vy
