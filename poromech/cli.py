@@ -41,20 +41,24 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
-def _petsc_options(extra: list[str]) -> dict[str, str]:
-    """``-key value`` / ``-flag`` pairs from unrecognized arguments."""
-    out, i = {}, 0
-    while i < len(extra):
-        key = extra[i]
-        if not key.startswith("-") or key.startswith("--"):
-            raise SystemExit(f"poromech: unrecognized argument {key!r}")
-        value = ""
-        if i + 1 < len(extra) and not (extra[i + 1].startswith("-") and
-                                       not _is_number(extra[i + 1])):
-            value, i = extra[i + 1], i + 1
-        out[key[1:]] = value
+_OWN_SHORT = {"-o", "-q", "-v", "-h"}
+
+
+def _split_petsc_options(argv: list[str]) -> tuple[list[str], dict[str, str]]:
+    """Separate PETSc options (``-key [value]``, single dash) from poromech's own arguments."""
+    own, petsc, i = [], {}, 0
+    while i < len(argv):
+        arg = argv[i]
+        if arg.startswith("-") and not arg.startswith("--") and arg not in _OWN_SHORT \
+                and len(arg) > 2 and not _is_number(arg):
+            value = ""
+            if i + 1 < len(argv) and (not argv[i + 1].startswith("-") or _is_number(argv[i + 1])):
+                value, i = argv[i + 1], i + 1
+            petsc[arg[1:]] = value
+        else:
+            own.append(arg)
         i += 1
-    return out
+    return own, petsc
 
 
 def _is_number(text: str) -> bool:
@@ -77,8 +81,8 @@ def _setup_logging(rank: int, quiet: bool, verbose: bool) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``poromech`` command."""
-    args, extra = _parser().parse_known_args(argv)
-    petsc_opts = _petsc_options(extra)
+    own, petsc_opts = _split_petsc_options(list(sys.argv[1:] if argv is None else argv))
+    args = _parser().parse_args(own)
 
     import dolfinx_solver  # noqa: F401  (MPI first)
     from mpi4py import MPI

@@ -150,6 +150,9 @@ class _Builder:
             if value is None and type(None) in args:
                 return None
             inner = [a for a in args if a is not type(None)]
+            for a in inner:  # a value already of one of the member types is kept as it is
+                if a in (str, float, int, bool) and type(value) is a:
+                    return value
             return self._convert(value, inner[0], path)
         if value is None:
             raise ConfigError(f"scene key '{path}' is null but a value is required")
@@ -382,23 +385,110 @@ def _check_mechanics(scene: Scene, geo: PlaneGeometry) -> None:
 
 
 def _check_flow(scene: Scene, geo: PlaneGeometry) -> None:
-    if scene.flow is None:
+    """Validate a flow scene (physics ``flow``): every failure is a one-line ConfigError."""
+    from poromech.scene import Flow, FractureFlow
+
+    flow = scene.flow
+    if flow is None:
         raise ConfigError("scene key 'flow' is required for physics 'flow'")
-    if len(scene.flow.permeability) not in (1, 2, 3):
-        raise ConfigError(
-            f"scene key 'flow.permeability' has {len(scene.flow.permeability)} entries "
-            "(allowed: [k], [k_xx, k_yy] or [k_xx, k_xy, k_yy])"
-        )
+    if scene.mesh is None:
+        raise ConfigError("scene key 'mesh' is required for physics 'flow'")
+    times = [0.0] if scene.time is None else np.linspace(0, scene.time.final, 5)
+    _check_flow_permeability(flow.permeability, geo, times)
+    fields = ("aperture", "fracture_permeability", "fracture_normal_permeability",
+              "fracture_conductivity", "source", "fracture_source", "initial_pressure")
+    for name in fields:
+        _check_field(getattr(flow, name), f"flow.{name}", _field_meta(Flow, name), geo, times)
+    if flow.fracture_permeability is not None and flow.fracture_conductivity is not None:
+        raise ConfigError("scene key 'flow': give fracture_permeability or fracture_conductivity, "
+                          "not both")
+    seen: set[str] = set()
+    for i, ff in enumerate(flow.fractures):
+        path = f"flow.fractures.{i}"
+        if ff.fracture not in geo.fracture_names or ff.fracture in seen:
+            what = "repeats" if ff.fracture in seen else "is not a fracture"
+            raise ConfigError(f"scene key '{path}.fracture' = {ff.fracture!r} {what} "
+                              f"(allowed: {', '.join(geo.fracture_names)})")
+        seen.add(ff.fracture)
+        if ff.permeability is not None and ff.conductivity is not None:
+            raise ConfigError(f"scene key '{path}': give permeability or conductivity, not both")
+        for name in ("aperture", "permeability", "normal_permeability", "conductivity"):
+            _check_field(getattr(ff, name), f"{path}.{name}", _field_meta(FractureFlow, name),
+                         geo, times)
+    _check_flow_boundaries(scene, geo)
+    _check_flow_petsc(flow.petsc)
+    _check_probes(scene)
+
+
+def _check_flow_permeability(perm, geo: PlaneGeometry, times) -> None:
+    """Permeability: 1, 2 or 3 components forming an SPD tensor everywhere."""
+    allowed = "[k], [k_xx, k_yy] or [k_xx, k_xy, k_yy]"
+    if len(perm) not in (1, 2, 3):
+        raise ConfigError(f"scene key 'flow.permeability' has {len(perm)} entries "
+                          f"(allowed: {allowed})")
+    x, y = _sample_points(geo)
+    for t in times:
+        k = [np.broadcast_to(e(x, y, t), x.shape) for e in perm]
+        kxx, kyy = k[0], k[-1]
+        det = kxx * kyy - (k[1] ** 2 if len(k) == 3 else 0.0)
+        bad = ~(np.isfinite(det) & (kxx > 0) & (kyy > 0) & (det > 0))
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            value = [float(c[i]) for c in k]
+            raise ConfigError(
+                f"scene key 'flow.permeability' = {value} at x={x[i]:g}, y={y[i]:g} is not "
+                "allowed: must be positive definite (k_xx > 0, k_yy > 0, k_xx k_yy > k_xy²)"
+            )
+
+
+def _check_flow_boundaries(scene: Scene, geo: PlaneGeometry) -> None:
+    """Boundary names, one of pressure/flux each, and a pressure condition when needed."""
+    flow = scene.flow
     known = set(geo.boundary_names)
-    for i, bc in enumerate(scene.flow.boundary_conditions):
+    used: set[str] = set()
+    for i, bc in enumerate(flow.boundary_conditions):
         path = f"flow.boundary_conditions.{i}"
         if bc.boundary not in known:
             raise ConfigError(
                 f"scene key '{path}.boundary' = {bc.boundary!r} is not a boundary "
                 f"(allowed: {', '.join(sorted(known))})"
             )
+        if bc.boundary in used:
+            raise ConfigError(f"scene key '{path}.boundary' = {bc.boundary!r} already has a "
+                              "flow condition (one per boundary)")
+        used.add(bc.boundary)
         if (bc.pressure is None) == (bc.flux is None):
             raise ConfigError(f"scene key '{path}' needs exactly one of pressure, flux")
+    transient_storage = scene.time is not None and flow.biot_modulus is not None
+    if not transient_storage and all(bc.pressure is None for bc in flow.boundary_conditions):
+        raise ConfigError(
+            "scene key 'flow.boundary_conditions' has no pressure condition: the pressure is not "
+            "unique without one (allowed: add a pressure condition, or time with biot_modulus)"
+        )
+
+
+def _check_flow_petsc(options: Mapping) -> None:
+    """PETSc option names are given without the dash and without the flow_ prefix."""
+    for key in options:
+        if key.startswith("-") or key.startswith("flow_"):
+            raise ConfigError(f"scene key 'flow.petsc.{key}' is not allowed: give the option "
+                              f"without '-' and without the flow_ prefix (e.g. ksp_rtol)")
+
+
+def _check_probes(scene: Scene) -> None:
+    """Probe names are unique and usable in file names; lines have a length."""
+    names: set[str] = set()
+    for i, probe in enumerate(scene.probes):
+        path = f"probes.{i}"
+        if not probe.name or not all(c.isalnum() or c in "_-" for c in probe.name):
+            raise ConfigError(f"scene key '{path}.name' = {probe.name!r} is not allowed: "
+                              "use letters, digits, '_' or '-'")
+        if probe.name in names:
+            raise ConfigError(f"scene key '{path}.name' = {probe.name!r} repeats")
+        names.add(probe.name)
+        if np.allclose(probe.start, probe.end, rtol=0.0, atol=0.0):
+            raise ConfigError(f"scene key '{path}.end' = {list(probe.end)} equals start: "
+                              "a probe line needs two distinct points")
 
 
 def scene_from_dict(raw: Mapping) -> Scene:

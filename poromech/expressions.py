@@ -193,6 +193,14 @@ class Expression:
         return not any(isinstance(n, ast.Name) and n.id in VARIABLES for n in ast.walk(tree))
 
     @property
+    def is_uniform(self) -> bool:
+        """True when the value does not depend on x or y (it may depend on t)."""
+        if not isinstance(self.source, str):
+            return True
+        tree = _parse(self.source)
+        return not any(isinstance(n, ast.Name) and n.id in ("x", "y") for n in ast.walk(tree))
+
+    @property
     def depends_on_time(self) -> bool:
         """True when the expression uses ``t``."""
         if not isinstance(self.source, str):

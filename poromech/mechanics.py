@@ -144,8 +144,11 @@ class MechanicsModel:
 
     def _field(self, space, expr: Expression, name: str):
         """A DG0 (or constant) coefficient from an expression, updated in time if needed."""
-        if expr.is_constant and not expr.depends_on_time:
-            return fem.Constant(self.fm.msh, expr.value())
+        if expr.is_uniform:
+            c = fem.Constant(self.fm.msh, expr.value())
+            if expr.depends_on_time:
+                self._updaters.append(_Updater(c, (expr,)))
+            return c
         f = fem.Function(space, name=name)
         upd = _Updater(f, (expr,))
         upd(0.0)
@@ -156,7 +159,7 @@ class MechanicsModel:
     def _vector_input(self, exprs: tuple[Expression, Expression]):
         """A constant or interpolated vector load (body force, traction)."""
         msh = self.fm.msh
-        if all(e.is_constant for e in exprs):
+        if all(e.is_uniform for e in exprs):
             c = fem.Constant(msh, np.array([e.value() for e in exprs]))
             if any(e.depends_on_time for e in exprs):
                 self._updaters.append(_Updater(c, exprs))
@@ -172,7 +175,7 @@ class MechanicsModel:
         pf = None
         if self.scene.fracture_pressure is not None and self.has_fractures:
             expr = self.scene.fracture_pressure
-            if expr.is_constant:
+            if expr.is_uniform:
                 pf = fem.Constant(self.fm.msh, expr.value())
                 if expr.depends_on_time:
                     self._updaters.append(_Updater(pf, (expr,)))

@@ -215,7 +215,7 @@ def _facet_sides(msh, facets, normals):
     f2c = msh.topology.connectivity(tdim - 1, tdim)
     c2f = msh.topology.connectivity(tdim, tdim - 1)
     x = msh.geometry.x[:, :2]
-    gdofs = msh.geometry.dofmap
+    gdofs = msh.geometry.dofmaps[0]
     fv = dolfinx.mesh.entities_to_geometry(msh, tdim - 1, facets)
     mid = x[fv].mean(axis=1)
     plus = np.empty((len(facets), 2), dtype=np.int32)
@@ -236,7 +236,7 @@ def _cracked_topology(msh, cracked_rows, orig_cells_rows):
     tdim = msh.topology.dim
     imap = msh.topology.index_map(tdim)
     num_local = imap.size_local + imap.num_ghosts
-    gnodes = msh.geometry.input_global_indices[msh.geometry.dofmap[:num_local]]
+    gnodes = msh.geometry.input_global_indices[msh.geometry.dofmaps[0][:num_local]]
     # Position of each local cell vertex in its input cell row
     pos = np.argmax(orig_cells_rows[:, None, :] == gnodes[:, :, None], axis=2)
     cracked = np.take_along_axis(cracked_rows, pos, axis=1)

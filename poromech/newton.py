@@ -156,11 +156,10 @@ class SemiSmoothNewton:
         if self.line_search != "contact":
             merged.update(snes_type="newtonls", snes_linesearch_type=self.line_search)
         opts = PETSc.Options()
-        opts.prefixPush(prefix)
-        pushed = [k for k, v in merged.items() if v is not None and not opts.hasName(k)]
-        for k in pushed:  # options already in the database (command line) win
-            opts[k] = merged[k]
-        opts.prefixPop()
+        pushed = [f"{prefix}{k}" for k, v in merged.items()
+                  if v is not None and not opts.hasName(f"{prefix}{k}")]
+        for key in pushed:  # options already in the database (command line) win
+            opts[key] = merged[key[len(prefix):]]
         snes.setFunction(self._residual, self.b)
         snes.setJacobian(self._jacobian, self.A, self.A)
         snes.setFromOptions()
@@ -169,10 +168,8 @@ class SemiSmoothNewton:
         snes.setConvergenceTest(self._converged)
         snes.setMonitor(self._monitor)
         self.A.setOptionsPrefix(f"{prefix}A_")
-        opts.prefixPush(prefix)
-        for k in pushed:
-            opts.delValue(k)
-        opts.prefixPop()
+        for key in pushed:
+            opts.delValue(key)
         return snes
 
     def destroy(self) -> None:

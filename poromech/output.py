@@ -52,7 +52,7 @@ def duplicated_node_mesh(fm: FracturedMesh) -> tuple[dolfinx.mesh.Mesh, npt.NDAr
     comm, msh = fm.comm, fm.msh
     nloc = msh.topology.index_map(2).size_local
     cells = np.ascontiguousarray(fm.cracked_cells[:nloc])
-    x = msh.geometry.x[msh.geometry.dofmap[:nloc]][:, :, :2].reshape(-1, 2)
+    x = msh.geometry.x[msh.geometry.dofmaps[0][:nloc]][:, :, :2].reshape(-1, 2)
     num = comm.allreduce(int(cells.max()) + 1 if len(cells) else 0, op=MPI.MAX)
     gathered = comm.gather((cells.ravel(), x), root=0)
     coords = np.zeros((num, 2)) if comm.rank == 0 else np.empty((0, 2))
@@ -75,7 +75,7 @@ class _DisplacementTransfer:
         self.mesh, source = duplicated_node_mesh(fm)
         self.W = fem.functionspace(self.mesh, ("Lagrange", 1, (2,)))
         self.w = fem.Function(self.W, name="u")
-        out_ids = self.mesh.geometry.input_global_indices[self.mesh.geometry.dofmap[: len(source)]]
+        out_ids = self.mesh.geometry.input_global_indices[self.mesh.geometry.dofmaps[0][: len(source)]]
         in_ids = fm.cracked_cells[source]
         # position in the fm.msh cell of each output vertex
         pos = np.argmax(out_ids[:, :, None] == in_ids[:, None, :], axis=2)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dolfinx_solver  # noqa: F401, I001  (loads MPI before any DOLFINx/PETSc import in tests)
 import json
 import os
 import shutil
@@ -44,3 +45,42 @@ def run_parallel(code: str, nprocs: int = 2, timeout: float = 600.0) -> dict:
     if not lines:
         pytest.fail(f"no JSON result from the parallel run:\n{proc.stdout[-3000:]}")
     return json.loads(lines[-1])
+
+
+def network_geometry() -> dict:
+    """A network with every kind of fracture end: tips, a corner, a T, an X, the boundary."""
+    return {
+        "domain": {"rectangle": [0.0, 0.0, 2.0, 1.0]},
+        "fractures": [
+            {"name": "corner", "points": [[0.2, 0.8], [0.5, 0.88], [0.8, 0.8]]},
+            {"name": "bar", "points": [[0.2, 0.5], [0.8, 0.5]]},
+            {"name": "stem", "points": [[0.5, 0.2], [0.5, 0.5]]},
+            {"name": "x1", "points": [[1.2, 0.2], [1.6, 0.6]]},
+            {"name": "x2", "points": [[1.2, 0.6], [1.6, 0.2]]},
+            {"name": "edge", "points": [[1.7, 0.8], [2.0, 0.8]]},
+        ],
+    }
+
+
+def mechanics_scene(**overrides) -> dict:
+    """A small valid mechanics scene as a raw mapping (compression + shear of the network)."""
+    scene = {
+        "name": "test",
+        "geometry": network_geometry(),
+        "mesh": {"size": 0.1, "fracture_size": 0.05},
+        "degree": 2,
+        "material": {"young": 1.0e9, "poisson": 0.25},
+        "contact": {"formulation": "nitsche", "beta_n": 1.0e11, "beta_t": 1.0e11,
+                    "friction_coefficient": 0.3},
+        "boundary_conditions": [
+            {"boundary": "bottom", "displacement": [0.0, 0.0]},
+            {"boundary": "top", "displacement": [0.002, -0.001]},
+        ],
+    }
+    for key, value in overrides.items():
+        node = scene
+        parts = key.split("__")
+        for p in parts[:-1]:
+            node = node[p]
+        node[parts[-1]] = value
+    return scene

@@ -1,0 +1,106 @@
+"""The command line: outputs of a run, a run that does not converge, PETSc options, MPI."""
+
+import csv
+import json
+import subprocess
+import sys
+
+import h5py
+import numpy as np
+import pytest
+from conftest import ROOT, mpirun
+
+from poromech.output import CSV_COLUMNS
+
+POROMECH = [sys.executable, "-m", "poromech"]
+
+
+def run(args, cwd=ROOT, timeout=600):
+    return subprocess.run(POROMECH + args, capture_output=True, text=True, cwd=cwd,
+                          timeout=timeout)
+
+
+def test_default_scene_outputs(tmp_path):
+    out = tmp_path / "out"
+    proc = run(["run", "-o", str(out), "--set", "time.steps=2"])
+    assert proc.returncode == 0, proc.stderr
+    for name in ("displacement.xdmf", "displacement.h5", "fractures.xdmf", "fractures.h5",
+                 "fractures.csv", "summary.json", "displacement_p2.bp"):
+        assert (out / name).exists(), name
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["scene"] == "six_fractures_mechanics" and summary["status"] == "converged"
+    assert summary["formulation"] == "nitsche" and summary["degree"] == 2
+    assert summary["mpi_ranks"] == 1 and summary["dofs"] > 10000
+    assert len(summary["solves"]) == 2
+    for s in summary["solves"]:
+        assert s["converged"] and s["reason"].startswith("CONVERGED")
+        assert s["iterations"] == len(s["residuals"]) - 1 == len(s["active_set_changes"])
+    assert {"mesh", "setup", "assembly", "linear_solve", "output", "total"} <= set(
+        summary["wall_time"])
+    rows = list(csv.reader(open(out / "fractures.csv")))
+    assert tuple(rows[0]) == CSV_COLUMNS
+    faces = summary["mesh"]["fracture_faces"]
+    assert len(rows) == 1 + 2 * faces
+    assert {r[9] for r in rows[1:]} <= {"open", "stick", "slip"}
+    assert {r[1] for r in rows[1:]} == {"1", "2", "3", "4", "5", "6"}
+    # the duplicated-node output mesh has more points than the connected mesh has vertices
+    with h5py.File(out / "displacement.h5") as f:
+        points = f["Mesh/mesh/geometry"].shape[0]
+        u = np.asarray(f["Function/u/1000"]) if "1000" in f["Function/u"] else None
+    assert points > summary["mesh"]["vertices"]
+    assert "poromech" in proc.stdout and "step 2/2" in proc.stdout
+
+
+def test_quiet_and_petsc_option(tmp_path):
+    proc = run(["run", "configs/sneddon.yaml", "-q", "-o", str(tmp_path / "q"),
+                "-mech_ksp_type", "preonly", "--set", "output.xdmf=false"])
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == ""
+    assert not (tmp_path / "q" / "displacement.xdmf").exists()
+
+
+def test_non_convergence_keeps_results_and_exits_3(tmp_path):
+    """Step 1 sticks (one Newton iteration), step 2 must slip but gets one iteration only."""
+    out = tmp_path / "fail"
+    proc = run(["run", "configs/inclined_crack_slip.yaml", "-o", str(out),
+                "--set", "contact.friction=tresca",
+                "--set", "contact.slip_bound=where(t < 1.5, 1e12, 1e5)",
+                "--set", "time={final: 2.0, steps: 2}",
+                "-mech_snes_max_it", "1"])
+    assert proc.returncode == 3, proc.stdout + proc.stderr
+    assert "DIVERGED_MAX_IT" in proc.stderr and "residual history" in proc.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"].startswith("failed")
+    assert [s["converged"] for s in summary["solves"]] == [True, False]
+    rows = list(csv.reader(open(out / "fractures.csv")))
+    assert len(rows) > 1 and {r[0] for r in rows[1:]} == {"1"}
+
+
+def test_parallel_run_matches_serial(tmp_path):
+    args = ["run", "-q", "--set", "time.steps=1", "--set", "output.xdmf=false"]
+    serial = run(args + ["-o", str(tmp_path / "s")])
+    assert serial.returncode == 0, serial.stderr
+    par = subprocess.run([mpirun(), "-n", "2", *POROMECH, *args, "-o", str(tmp_path / "p")],
+                         capture_output=True, text=True, cwd=ROOT, timeout=600)
+    assert par.returncode == 0, par.stderr
+    a = list(csv.reader(open(tmp_path / "s" / "fractures.csv")))[1:]
+    b = list(csv.reader(open(tmp_path / "p" / "fractures.csv")))[1:]
+    assert len(a) == len(b)
+    va = np.array([[float(v) for v in r[5:9]] for r in a])
+    vb = np.array([[float(v) for v in r[5:9]] for r in b])
+    scale = np.abs(va).max(axis=0)
+    assert np.all(np.abs(va - vb).max(axis=0) <= 1e-6 * scale)
+    assert [r[9] for r in a] == [r[9] for r in b]
+    sa = json.loads((tmp_path / "s" / "summary.json").read_text())
+    sb = json.loads((tmp_path / "p" / "summary.json").read_text())
+    assert sb["mpi_ranks"] == 2 and sa["dofs"] == sb["dofs"]
+    assert sa["solves"][0]["iterations"] == sb["solves"][0]["iterations"]
+
+
+def test_parallel_non_convergence_does_not_hang(tmp_path):
+    proc = subprocess.run(
+        [mpirun(), "-n", "2", *POROMECH, "run", "-q", "-o", str(tmp_path / "f"),
+         "--set", "time.steps=1", "-mech_snes_max_it", "1"],
+        capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert proc.returncode == 3
+    assert proc.stderr.count("did not converge") == 1  # reported once, by rank 0

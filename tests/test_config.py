@@ -1,0 +1,144 @@
+"""Scene validation: every bad input is one clear line naming the key, value and what is allowed."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import yaml
+from conftest import ROOT, mechanics_scene
+
+from poromech.config import ConfigError, apply_overrides, load_scene, scene_from_dict
+from poromech.expressions import ExpressionError, compile_expression
+
+
+def _error(raw) -> str:
+    with pytest.raises(ConfigError) as info:
+        scene_from_dict(raw)
+    msg = str(info.value)
+    assert "\n" not in msg
+    return msg
+
+
+@pytest.mark.parametrize(
+    ("overrides", "fragments"),
+    [
+        ({"contact__formulaton": "mixed"}, ["contact.formulaton", "unknown", "formulation"]),
+        ({"material__young": -1.0}, ["material.young", "-1.0", "> 0"]),
+        ({"material__poisson": 0.5}, ["material.poisson", "0.5", "< 0.5"]),
+        ({"material__poisson": -1.0}, ["material.poisson", "> -1"]),
+        ({"material__young": "where(x < 1, 1e9, -5)"}, ["material.young", "> 0", "x="]),
+        ({"material__young": "foo * 2"}, ["material.young", "unknown name 'foo'"]),
+        ({"material__young": "__import__('os')"}, ["material.young", "not allowed"]),
+        ({"degree": 3}, ["degree", "3", "1, 2"]),
+        ({"degree": "two"}, ["degree", "integer"]),
+        ({"contact__formulation": "lagrange"}, ["contact.formulation", "lagrange", "nitsche"]),
+        ({"contact__theta": 0.5}, ["contact.theta", "-1, 0, 1"]),
+        ({"contact__beta_n": 0}, ["contact.beta_n", "> 0"]),
+        ({"contact__friction_coefficient": -0.1}, ["friction_coefficient", ">= 0"]),
+        ({"contact__friction": "tresca"}, ["contact.slip_bound", "tresca"]),
+        ({"mesh__size": 0}, ["mesh.size", "> 0"]),
+        ({"mesh__refinement": -1}, ["mesh.refinement", ">= 0"]),
+        ({"boundary_conditions": [{"boundary": "top", "displacement": [0, 0]},
+                                  {"boundary": "roof", "displacement": [0, 0]}]},
+         ["boundary_conditions.1.boundary", "roof", "bottom"]),
+        ({"boundary_conditions": [{"boundary": "top", "traction": [0, -1]}]},
+         ["boundary_conditions", "rigid body"]),
+        ({"boundary_conditions": [{"boundary": "top", "displacement": [0, 0],
+                                   "traction": [0, 0]}]}, ["exactly one"]),
+    ],
+)
+def test_invalid_values(overrides, fragments):
+    msg = _error(mechanics_scene(**overrides))
+    for f in fragments:
+        assert f in msg, (f, msg)
+
+
+@pytest.mark.parametrize(
+    ("fractures", "fragments"),
+    [
+        ([{"points": [[0.5, 0.5], [3.0, 0.5]]}], ["outside the domain"]),
+        ([{"points": [[0.5, 0.5], [0.5, 0.5], [0.8, 0.5]]}], ["zero-length segment"]),
+        ([{"points": [[0.2, 0.2], [0.8, 0.8], [0.8, 0.2], [0.2, 0.8]]}], ["crosses or folds"]),
+        ([{"points": [[0.2, 0.5], [0.8, 0.5], [0.4, 0.5]]}], ["crosses or folds"]),
+        ([{"points": [[0.2, 0.5], [0.6, 0.5]]}, {"points": [[0.4, 0.5], [0.9, 0.5]]}],
+         ["overlap"]),
+        ([{"points": [[0.0, 0.0], [1.0, 0.0]]}], ["runs along domain edge"]),
+        ([{"points": [[0.2, 0.5]]}], ["at least 2"]),
+    ],
+)
+def test_invalid_geometry(fractures, fragments):
+    raw = mechanics_scene()
+    raw["geometry"]["fractures"] = fractures
+    msg = _error(raw)
+    for f in fragments:
+        assert f in msg, (f, msg)
+
+
+def test_valid_network_and_string_numbers():
+    raw = mechanics_scene(material={"young": "4e9", "poisson": 0.2})  # YAML reads 4e9 as str
+    scene = scene_from_dict(raw)
+    assert scene.material.young.value() == 4e9
+    assert [f.name for f in scene.geometry.fractures][:2] == ["corner", "bar"]
+
+
+def test_overrides():
+    raw = mechanics_scene()
+    out = apply_overrides(raw, ["contact.formulation=mixed", "boundary_conditions.1.displacement=[0.001, 0]",
+                                "mesh.refinement=2", "solver.petsc.snes_max_it=7"])
+    scene = scene_from_dict(out)
+    assert scene.contact.formulation == "mixed"
+    assert scene.boundary_conditions[1].displacement[0].value() == 0.001
+    assert scene.mesh.refinement == 2 and scene.solver.petsc["snes_max_it"] == 7
+    assert raw["contact"]["formulation"] == "nitsche"  # the input is not modified
+    with pytest.raises(ConfigError, match="out of range"):
+        apply_overrides(raw, ["boundary_conditions.7.boundary=top"])
+    with pytest.raises(ConfigError, match="dotted.key=value"):
+        apply_overrides(raw, ["degree"])
+
+
+def test_geometry_by_name_and_default_scene():
+    scene = load_scene(None)
+    assert len(scene.geometry.fractures) == 6
+    scene = load_scene(None, ["geometry=six_fractures", "time.steps=2"])
+    assert scene.time.steps == 2
+    with pytest.raises(ConfigError, match="not a known geometry"):
+        load_scene(None, ["geometry=nowhere"])
+
+
+@pytest.mark.parametrize("name", ["six_fractures_mechanics", "sneddon", "inclined_crack_slip",
+                                  "inclined_crack_stick", "inclined_crack_frictionless"])
+def test_shipped_scenes_are_valid(name):
+    load_scene(ROOT / "configs" / f"{name}.yaml")
+
+
+def test_cli_validate_exit_codes(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump(mechanics_scene(material={"young": 1e9, "poisson": 0.7})))
+    proc = subprocess.run([sys.executable, "-m", "poromech", "validate", str(bad)],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "material.poisson" in lines[0] and "0.7" in lines[0]
+    good = tmp_path / "good.yaml"
+    good.write_text(yaml.safe_dump(mechanics_scene()))
+    proc = subprocess.run([sys.executable, "-m", "poromech", "validate", str(good)],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0
+    broken = tmp_path / "broken.yaml"
+    broken.write_text("name: [unclosed\n")
+    proc = subprocess.run([sys.executable, "-m", "poromech", "run", str(broken)],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2 and "not valid YAML" in proc.stderr
+
+
+def test_expressions():
+    e = compile_expression("0.005*min(4*t/T, 1)", {"T": 2000.0})
+    assert e.depends_on_time and e.is_uniform and not e.is_constant
+    assert e.value(250.0) == pytest.approx(0.0025) and e.value(3000.0) == pytest.approx(0.005)
+    f = compile_expression("where(x < 1, 1e3, 1e11)")
+    assert np.allclose(f(np.array([0.5, 1.5]), np.zeros(2)), [1e3, 1e11])
+    assert compile_expression(3).value() == 3.0
+    for bad in ["x.__class__", "open('f')", "lambda: 1", "[1, 2]", "x if y else 1", "'text'"]:
+        with pytest.raises(ExpressionError):
+            compile_expression(bad)

@@ -1,0 +1,179 @@
+"""Fractured meshes: duplicated-node spaces, orientation, arc length, refinement family."""
+
+import numpy as np
+import pytest
+import ufl
+from conftest import mechanics_scene, run_parallel
+from dolfinx import fem
+from mpi4py import MPI
+
+import dolfinx_solver  # noqa: F401
+from poromech.config import plane_geometry, scene_from_dict
+from poromech.geometry import segment_normals
+from poromech.mesh import FRACTURE_TAG, cracked_space, crack_vertices, fracture_measure
+from poromech.meshing import generate_mesh
+from poromech.run import build_mesh, mesh_sizes
+
+comm = MPI.COMM_WORLD
+
+
+@pytest.fixture(scope="module")
+def network():
+    scene = scene_from_dict(mechanics_scene())
+    return scene, build_mesh(scene, comm)
+
+
+def _copies_at(coords: np.ndarray, point, bs: int = 2) -> int:
+    d = np.linalg.norm(coords[:, :2] - np.asarray(point), axis=1)
+    return int(np.count_nonzero(d < 1e-10))
+
+
+@pytest.mark.parametrize("degree", [1, 2])
+def test_copy_counts(network, degree):
+    """Tip 1, corner 2, T 3, X 4, boundary 2, interior fracture point 2, off-fracture 1."""
+    scene, fm = network
+    V = cracked_space(fm, degree)
+    x = V.tabulate_dof_coordinates()
+    expected = {
+        (0.2, 0.8): 1,  # tip
+        (0.5, 0.88): 2,  # corner
+        (0.5, 0.5): 3,  # T
+        (1.4, 0.4): 4,  # X
+        (2.0, 0.8): 2,  # fracture meets the boundary
+        (0.8, 0.5): 1,  # tip
+        (1.7, 0.8): 1,  # tip
+    }
+    for point, n in expected.items():
+        assert _copies_at(x, point) == n, point
+    # every vertex on a fracture interior has two copies; an arbitrary off-fracture vertex one
+    faces = fm.fractures
+    mid = faces.midpoint[faces.fracture == 1][0]  # a face midpoint of 'bar'
+    if degree == 2:
+        assert _copies_at(x, mid) == 2
+
+
+def test_crack_vertices_counts():
+    """The star-component rule on raw arrays: extra copies = sum over vertices of (copies-1)."""
+    scene = scene_from_dict(mechanics_scene())
+    arrays = generate_mesh(plane_geometry(scene), mesh_sizes(scene))
+    cracked, n = crack_vertices(arrays.cells, arrays.fracture_facets, len(arrays.x))
+    fverts = np.unique(arrays.fracture_facets)
+    copies = np.array([len(np.unique(cracked[arrays.cells == v])) for v in fverts])
+    assert n - len(arrays.x) == int(np.sum(copies - 1))
+    # non-fracture vertices are never split
+    other = np.setdiff1d(np.arange(len(arrays.x)), fverts)[:50]
+    assert all(len(np.unique(cracked[arrays.cells == v])) == 1 for v in other)
+
+
+def test_orientation_and_coincident_points(network):
+    """∫ n('+')·n_ref dS = |Γ| with n_ref from the polylines; ∫ |x⁺ - x⁻|² dS = 0."""
+    scene, fm = network
+    from poromech.mechanics import _facet_submesh
+
+    sub, emap = _facet_submesh(fm)
+    Q = fem.functionspace(sub, ("DG", 0, (2,)))
+    nref = fem.Function(Q)
+    faces = fm.fractures
+    normals = np.vstack([segment_normals(p) for p in fm.geometry.fractures])
+    offsets = np.cumsum([0] + [len(p) - 1 for p in fm.geometry.fractures])
+    cells = emap.sub_topology_to_topology(faces.facets, inverse=True)
+    nref.x.array.reshape(-1, 2)[cells] = normals[offsets[faces.fracture] + faces.segment]
+    nref.x.scatter_forward()
+    dG = fracture_measure(fm)(FRACTURE_TAG)
+    n = ufl.FacetNormal(fm.msh)
+    x = ufl.SpatialCoordinate(fm.msh)
+    flux = fem.form(ufl.dot(n("+"), nref("+")) * dG, entity_maps=[emap])
+    gap = fem.form(ufl.dot(x("+") - x("-"), x("+") - x("-")) * dG)
+    length = comm.allreduce(fem.assemble_scalar(flux), op=MPI.SUM)
+    total = fm.geometry.fracture_lengths().sum()
+    assert length == pytest.approx(total, rel=1e-12)
+    assert comm.allreduce(fem.assemble_scalar(gap), op=MPI.SUM) < 1e-28
+
+
+@pytest.mark.parametrize("degree", [1, 2])
+def test_smooth_field_has_no_jump(network, degree):
+    scene, fm = network
+    V = cracked_space(fm, degree)
+    u = fem.Function(V)
+    u.interpolate(lambda x: np.vstack([x[0] ** 2 + np.sin(3 * x[1]), x[0] * x[1]]))
+    dG = fracture_measure(fm)(FRACTURE_TAG)
+    j = fem.form(ufl.dot(u("+") - u("-"), u("+") - u("-")) * dG)
+    assert comm.allreduce(fem.assemble_scalar(j), op=MPI.SUM) < 1e-26
+
+
+def test_arc_length_and_face_data(network):
+    scene, fm = network
+    faces = fm.fractures
+    lengths = fm.geometry.fracture_lengths()
+    assert np.all(faces.s > 0) and np.all(faces.s < lengths[faces.fracture])
+    assert np.allclose(np.linalg.norm(faces.normal, axis=1), 1.0)
+    # face length = h_σ matches the geometry of its facet; total = |Γ|
+    total = comm.allreduce(faces.length.sum(), op=MPI.SUM)
+    assert total == pytest.approx(lengths.sum(), rel=1e-12)
+    # the corner fracture's two segments have different normals
+    corner = faces.fracture == 0
+    assert len(np.unique(np.round(faces.normal[corner], 12), axis=0)) == 2
+
+
+def test_refinement_family():
+    """Each refinement level has 4x the cells and 2x the fracture faces."""
+    counts = []
+    for m in range(3):
+        scene = scene_from_dict(mechanics_scene(mesh={"size": 0.2, "fracture_size": 0.1,
+                                                      "refinement": m}))
+        a = generate_mesh(plane_geometry(scene), mesh_sizes(scene))
+        counts.append((len(a.cells), len(a.fracture_facets)))
+    for (c0, f0), (c1, f1) in zip(counts, counts[1:]):
+        assert c1 == 4 * c0 and f1 == 2 * f0
+
+
+def test_six_fracture_family_matches_paper():
+    """The default scene's mesh family has about 2855·4^m cells and 88·2^m fracture faces."""
+    from poromech.config import load_scene
+
+    scene = load_scene(None)
+    a = generate_mesh(plane_geometry(scene), mesh_sizes(scene))
+    assert len(a.fracture_facets) in range(84, 93)
+    assert abs(len(a.cells) - 2855) / 2855 < 0.06
+
+
+def test_parallel_dofs_and_partition_on_fracture():
+    """Same dof count on 2 ranks, with a partition whose process boundary lies on a fracture."""
+    code = """
+    import json, numpy as np
+    import dolfinx_solver
+    from mpi4py import MPI
+    from poromech.config import scene_from_dict, plane_geometry
+    from poromech.meshing import generate_mesh
+    from poromech.mesh import create_fractured_mesh, cracked_space
+    from poromech.run import mesh_sizes
+    import sys; sys.path.insert(0, "tests")
+    from conftest import mechanics_scene
+    comm = MPI.COMM_WORLD
+    scene = scene_from_dict(mechanics_scene())
+    geo = plane_geometry(scene)
+    arrays = generate_mesh(geo, mesh_sizes(scene)) if comm.rank == 0 else None
+    owner = None
+    if comm.rank == 0:
+        c = arrays.x[arrays.cells].mean(axis=1)
+        owner = (c[:, 1] < 0.5).astype(np.int32)   # rank 1 below the 'bar' fracture y = 0.5
+    fm = create_fractured_mesh(comm, geo, arrays, owner=owner)
+    out = {}
+    for k in (1, 2):
+        V = cracked_space(fm, k)
+        out[f"P{k}"] = V.dofmap.index_map.size_global
+    f = fm.fractures
+    # faces of 'bar' whose + and - cells are on different ranks' sides: the cut lies on it
+    imap = fm.msh.topology.index_map(2)
+    bar = f.fracture == 1
+    ghost_side = np.count_nonzero((f.plus[bar, 0] >= imap.size_local) | (f.minus[bar, 0] >= imap.size_local))
+    out["cut_faces"] = comm.allreduce(int(ghost_side))
+    if comm.rank == 0:
+        print(json.dumps(out))
+    """
+    result = run_parallel(code)
+    scene = scene_from_dict(mechanics_scene())
+    fm = build_mesh(scene, comm)
+    for k in (1, 2):
+        assert result[f"P{k}"] == cracked_space(fm, k).dofmap.index_map.size_global
+    assert result["cut_faces"] > 5

@@ -1,0 +1,69 @@
+"""One rank and two ranks give the same contact solution, also when a process boundary lies on a
+fracture (faces whose + and - cells belong to different ranks)."""
+
+import json
+
+import numpy as np
+import pytest
+from conftest import mechanics_scene, run_parallel
+from mpi4py import MPI
+
+from poromech.config import scene_from_dict
+from poromech.run import MechanicsSimulation, build_mesh
+from poromech.timing import Timer
+
+CODE = """
+import json, sys, numpy as np
+import dolfinx_solver
+from mpi4py import MPI
+sys.path.insert(0, "tests")
+from conftest import mechanics_scene
+from poromech.config import scene_from_dict, plane_geometry
+from poromech.meshing import generate_mesh
+from poromech.mesh import create_fractured_mesh
+from poromech.run import MechanicsSimulation, mesh_sizes
+from poromech.timing import Timer
+comm = MPI.COMM_WORLD
+scene = scene_from_dict(json.loads('''SCENE'''))
+geo = plane_geometry(scene)
+arrays = generate_mesh(geo, mesh_sizes(scene)) if comm.rank == 0 else None
+owner = None
+if comm.rank == 0:
+    c = arrays.x[arrays.cells].mean(axis=1)
+    owner = (c[:, 1] < 0.5).astype(np.int32)
+fm = create_fractured_mesh(comm, geo, arrays, owner=owner)
+sim = MechanicsSimulation(scene, fm, Timer())
+sim.run()
+vals = sim.model.face_fields()
+rows = np.column_stack([fm.fractures.index, vals[:, :4]])
+imap = fm.msh.topology.index_map(2)
+cut = int(np.count_nonzero((fm.fractures.plus[:, 0] >= imap.size_local) |
+                           (fm.fractures.minus[:, 0] >= imap.size_local)))
+rows = comm.gather(rows, root=0)
+cut = comm.allreduce(cut)
+if comm.rank == 0:
+    rows = np.concatenate(rows)
+    rows = rows[np.argsort(rows[:, 0])]
+    print(json.dumps({"values": rows[:, 1:].tolist(), "cut": cut,
+                      "iterations": [r["iterations"] for r in sim.records],
+                      "dofs": sim.model.dof_count()}))
+"""
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize(("formulation", "degree"), [("nitsche", 1), ("mixed", 2)])
+def test_two_ranks_equal_one_rank(formulation, degree):
+    raw = mechanics_scene(degree=degree)
+    raw["contact"]["formulation"] = formulation
+    result = run_parallel(CODE.replace("SCENE", json.dumps(raw)))
+    scene = scene_from_dict(raw)
+    fm = build_mesh(scene, MPI.COMM_WORLD)
+    sim = MechanicsSimulation(scene, fm, Timer())
+    sim.run()
+    vals = sim.model.face_fields()[np.argsort(fm.fractures.index), :4]
+    par = np.array(result["values"])
+    assert result["cut"] > 5  # the process boundary runs along fracture 'bar'
+    assert result["dofs"] == sim.model.dof_count()
+    assert result["iterations"] == [r["iterations"] for r in sim.records]
+    scale = np.abs(vals).max(axis=0)
+    assert np.all(np.abs(par - vals).max(axis=0) <= 1e-8 * scale)
