@@ -1,0 +1,193 @@
+"""Error against run time of every contact formulation × displacement degree.
+
+Scenes: ``configs/sneddon.yaml`` (open pressurized crack, contact switched on) and
+``configs/inclined_crack_slip.yaml`` (closed crack slipping with Coulomb friction), both with
+their exact solutions imposed on the box. For each variant and each uniform refinement level the
+script records the relative L² and max errors of the jump, the Newton iterations and the wall time
+(mesh + setup + solve, with forms already compiled).
+
+Run (about 10 minutes on 2 cores)::
+
+    python scripts/mechanics_convergence.py
+
+Writes ``docs/mechanics/convergence.csv``, ``convergence.md`` and ``convergence.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import datetime
+import time
+from pathlib import Path
+
+import dolfinx_solver  # noqa: F401
+import numpy as np
+from mpi4py import MPI
+
+from poromech.config import load_scene
+from poromech.run import MechanicsSimulation, build_mesh
+from poromech.timing import Timer
+from poromech.verification import exact_jump, jump_errors
+
+ROOT = Path(__file__).resolve().parents[1]
+OUT = ROOT / "docs" / "mechanics"
+VARIANTS = [
+    ("mixed", -1),
+    ("stabilized_mixed", -1),
+    ("mean_nitsche", -1),
+    ("nitsche", -1),
+    ("nitsche", 0),
+    ("nitsche", 1),
+]
+SCENES = ["sneddon", "inclined_crack_slip"]
+FIELDS = ["scene", "formulation", "theta", "degree", "level", "cells", "fracture_faces", "dofs",
+          "newton_iterations", "l2", "max", "l2_n", "l2_t", "time_mesh", "time_setup",
+          "time_solve", "time_total"]
+
+
+def label(formulation: str, theta: int) -> str:
+    """Short name of a variant."""
+    if formulation in ("nitsche",):
+        return f"nitsche θ={theta:+d}"
+    return formulation.replace("_", "-")
+
+
+def run_case(name: str, formulation: str, theta: int, degree: int, level: int) -> dict:
+    """Solve one case and measure errors and times (collective)."""
+    comm = MPI.COMM_WORLD
+    scene = load_scene(ROOT / "configs" / f"{name}.yaml", [
+        f"contact.formulation={formulation}", f"contact.theta={theta}", f"degree={degree}",
+        f"mesh.refinement={level}"])
+    t0 = time.perf_counter()
+    fm = build_mesh(scene, comm)
+    t1 = time.perf_counter()
+    sim = MechanicsSimulation(scene, fm, Timer())
+    t2 = time.perf_counter()
+    records = sim.run()
+    t3 = time.perf_counter()
+    err = jump_errors(sim.model.u, fm, exact_jump(scene))
+    row = {
+        "scene": name, "formulation": formulation, "theta": theta, "degree": degree,
+        "level": level, "cells": fm.msh.topology.index_map(2).size_global,
+        "fracture_faces": fm.num_fracture_faces, "dofs": sim.model.dof_count(),
+        "newton_iterations": sum(r["iterations"] for r in records),
+        **{k: err[k] for k in ("l2", "max", "l2_n", "l2_t")},
+        "time_mesh": t1 - t0, "time_setup": t2 - t1, "time_solve": t3 - t2, "time_total": t3 - t0,
+    }
+    sim.close()
+    return row
+
+
+def fastest_at(rows: list[dict], target: float) -> tuple[str, float] | None:
+    """Variant reaching a relative L² error ``target`` in the least (log-interpolated) time."""
+    best = None
+    keys = sorted({(r["formulation"], r["theta"], r["degree"]) for r in rows})
+    for key in keys:
+        rs = sorted([r for r in rows if (r["formulation"], r["theta"], r["degree"]) == key],
+                    key=lambda r: r["level"])
+        for a, b in zip(rs, rs[1:]):
+            if a["l2"] >= target >= b["l2"]:
+                w = np.log(a["l2"] / target) / np.log(a["l2"] / b["l2"])
+                t = np.exp((1 - w) * np.log(a["time_total"]) + w * np.log(b["time_total"]))
+                name = f"{label(key[0], key[1])} P{key[2]}"
+                if best is None or t < best[1]:
+                    best = (name, float(t))
+                break
+    return best
+
+
+def write_markdown(rows: list[dict], path: Path, command: str) -> None:
+    """Tables per scene with observed rates, and the fastest variant per accuracy."""
+    lines = [f"# Error against run time of the contact formulations",
+             "", f"Generated {datetime.date.today()} by `{command}` "
+             f"({MPI.COMM_WORLD.size} MPI rank(s)). Errors: relative L² and max norm of the "
+             "jump on Γ against the exact solution; time: mesh + setup + Newton solve (s), "
+             "forms already compiled.", ""]
+    for name in SCENES:
+        lines += [f"## {name}", "",
+                  "| variant | P | level | dofs | Newton it | L² error | rate | max error | time (s) |",
+                  "|---|---|---|---|---|---|---|---|---|"]
+        sub = [r for r in rows if r["scene"] == name]
+        for formulation, theta in VARIANTS:
+            for degree in (1, 2):
+                rs = sorted([r for r in sub if r["formulation"] == formulation
+                             and r["theta"] == theta and r["degree"] == degree],
+                            key=lambda r: r["level"])
+                prev = None
+                for r in rs:
+                    rate = "" if prev is None else f"{np.log2(prev / r['l2']):.2f}"
+                    lines.append(
+                        f"| {label(formulation, theta)} | {degree} | {r['level']} | {r['dofs']} | "
+                        f"{r['newton_iterations']} | {r['l2']:.3e} | {rate} | {r['max']:.3e} | "
+                        f"{r['time_total']:.2f} |")
+                    prev = r["l2"]
+        lines += ["", "Fastest variant to reach a given relative L² error (log-interpolated "
+                  "between levels):", "", "| L² error | fastest | time (s) |", "|---|---|---|"]
+        for target in (2e-2, 1e-2, 5e-3, 2e-3, 1e-3):
+            best = fastest_at(sub, target)
+            if best:
+                lines.append(f"| {target:.0e} | {best[0]} | {best[1]:.2f} |")
+        lines.append("")
+    path.write_text("\n".join(lines) + "\n")
+
+
+def plot(rows: list[dict], path: Path) -> None:
+    """Log-log error against run time, one panel per scene."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(SCENES), figsize=(11, 4.2))
+    markers = dict(zip([label(*v) for v in VARIANTS], "osD^v<"))
+    for ax, name in zip(axes, SCENES):
+        for formulation, theta in VARIANTS:
+            for degree, ls in ((1, "--"), (2, "-")):
+                rs = sorted([r for r in rows if r["scene"] == name and r["formulation"] ==
+                             formulation and r["theta"] == theta and r["degree"] == degree],
+                            key=lambda r: r["level"])
+                if rs:
+                    lab = label(formulation, theta)
+                    ax.loglog([r["time_total"] for r in rs], [r["l2"] for r in rs], ls,
+                              marker=markers[lab], ms=4, label=f"{lab} P{degree}")
+        ax.set_xlabel("wall time (s)")
+        ax.set_ylabel("relative L² error of the jump")
+        ax.set_title(name)
+        ax.grid(True, which="both", alpha=0.3)
+    axes[-1].legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--levels-p1", type=int, default=5, help="refinement levels for P1")
+    parser.add_argument("--levels-p2", type=int, default=4, help="refinement levels for P2")
+    args = parser.parse_args()
+    comm = MPI.COMM_WORLD
+    OUT.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for name in SCENES:
+        for formulation, theta in VARIANTS:
+            for degree, levels in ((1, args.levels_p1), (2, args.levels_p2)):
+                run_case(name, formulation, theta, degree, 0)  # compile the forms first
+                for level in range(levels):
+                    row = run_case(name, formulation, theta, degree, level)
+                    rows.append(row)
+                    if comm.rank == 0:
+                        print(f"{name} {label(formulation, theta)} P{degree} m={level}: "
+                              f"L2 {row['l2']:.3e} it {row['newton_iterations']} "
+                              f"{row['time_total']:.2f} s", flush=True)
+    if comm.rank == 0:
+        with open(OUT / "convergence.csv", "w", newline="") as fh:
+            w = csv.DictWriter(fh, FIELDS)
+            w.writeheader()
+            for r in rows:
+                w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
+        write_markdown(rows, OUT / "convergence.md", "python scripts/mechanics_convergence.py")
+        plot(rows, OUT / "convergence.png")
+
+
+if __name__ == "__main__":
+    main()
