@@ -11,7 +11,7 @@ __all__ = ["biot_stress_form", "epsilon", "lame_parameters", "sigma", "elastic_f
 
 
 def lame_parameters(young, poisson):
-    """Lamé parameters ``(μ, λ)`` (Pa) from Young's modulus (Pa) and Poisson's ratio (plane strain)."""
+    """Lamé parameters ``(μ, λ)`` (Pa) from Young's modulus (Pa) and Poisson's ratio."""
     mu = young / (2 * (1 + poisson))
     lmbda = young * poisson / ((1 + poisson) * (1 - 2 * poisson))
     return mu, lmbda

@@ -49,8 +49,11 @@ def slip(w, n, w_ref=None):
 
 
 def negative_part(x):
-    """``[x]_R- = min(0, x)``; at ``x = 0`` the generalized derivative is that of the contact
-    branch, so a Newton iteration started from rest begins with the fractures closed."""
+    """``[x]_R- = min(0, x)``.
+
+    At ``x = 0`` the generalized derivative is that of the contact branch, so a Newton
+    iteration started from rest begins with the fractures closed.
+    """
     return ufl.conditional(ufl.le(x, 0.0), x, 0.0)
 
 

@@ -83,8 +83,11 @@ def _mode2(x, y, a: float, tau: float, E: float, nu: float):
 
 
 def inclined_crack_frame(psi: float) -> tuple[npt.NDArray, npt.NDArray]:
-    """Unit tangent ``t`` (along the crack) and normal ``n = (-t_y, t_x)`` for angle ``ψ`` (rad)
-    between the crack and the compression (y) axis. The crack runs from ``-b t`` to ``b t``."""
+    """Unit tangent ``t`` and normal ``n = (-t_y, t_x)`` of the inclined crack.
+
+    ``ψ`` (rad) is the angle between the crack and the compression (y) axis; the crack runs
+    from ``-b t`` to ``b t``.
+    """
     t = np.array([np.sin(psi), np.cos(psi)])
     return t, np.array([-t[1], t[0]])
 
@@ -104,8 +107,11 @@ def inclined_crack_slip(xi, b: float, psi: float, sigma: float, friction: float,
 
 def inclined_crack_slip_field(x, y, b: float, psi: float, sigma: float, friction: float,
                               E: float, nu: float):
-    """The part of the displacement (m) due to slip: a mode II field in the crack frame, whose
-    sign is that of the slip relaxing the remote shear. Zero when the crack sticks."""
+    """The part of the displacement (m) due to slip, zero when the crack sticks.
+
+    A mode II field in the crack frame, whose sign is that of the slip relaxing the remote
+    shear.
+    """
     x = np.asarray(x, dtype=np.float64)
     y = np.asarray(y, dtype=np.float64)
     tau = _effective_shear(psi, sigma, friction)
@@ -120,8 +126,10 @@ def inclined_crack_slip_field(x, y, b: float, psi: float, sigma: float, friction
 
 def inclined_crack_displacement(x, y, b: float, psi: float, sigma: float, friction: float,
                                 E: float, nu: float):
-    """Displacement (m) of the plane under remote uniaxial compression ``σ`` (Pa) along y,
-    with the inclined frictional crack: uniform plane-strain field + slip field."""
+    """Displacement (m) around the inclined frictional crack under compression ``σ`` (Pa).
+
+    Uniform plane-strain field of ``σ_yy = -σ`` plus the slip field.
+    """
     x = np.asarray(x, dtype=np.float64)
     y = np.asarray(y, dtype=np.float64)
     exx = (1 + nu) * nu * sigma / E

@@ -85,6 +85,7 @@ def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(own)
 
     import dolfinx_solver  # noqa: F401  (MPI first)
+
     from mpi4py import MPI
 
     from poromech.config import ConfigError, load_scene

@@ -73,7 +73,8 @@ def _resolve_geometry(raw: dict) -> dict:
         names = sorted(p.name[:-5] for p in meshes.iterdir() if p.name.endswith(".yaml"))
         if geo not in names:
             raise ConfigError(
-                f"scene key 'geometry' = {geo!r} is not a known geometry (allowed: {', '.join(names)})"
+                f"scene key 'geometry' = {geo!r} is not a known geometry "
+                f"(allowed: {', '.join(names)})"
             )
         raw = dict(raw)
         raw["geometry"] = yaml.safe_load(meshes.joinpath(f"{geo}.yaml").read_text())
@@ -215,9 +216,11 @@ class _Builder:
             return tuple(self._convert(v, args[0], f"{path}.{i}") for i, v in enumerate(value))
         if len(value) != len(args):
             raise ConfigError(
-                f"scene key '{path}' = {_fmt(value)} must have {len(args)} entries, not {len(value)}"
+                f"scene key '{path}' = {_fmt(value)} must have {len(args)} entries, "
+                f"not {len(value)}"
             )
-        return tuple(self._convert(v, a, f"{path}.{i}") for i, (v, a) in enumerate(zip(value, args)))
+        return tuple(self._convert(v, a, f"{path}.{i}")
+                     for i, (v, a) in enumerate(zip(value, args, strict=True)))
 
     def dataclass(self, value: Any, cls: type, path: str) -> Any:
         prefix = f"{path}." if path else ""
@@ -267,7 +270,9 @@ def _check_number(value: float, path: str, meta: Mapping, where: str = "") -> No
     for rule, (ok, text) in _RULES.items():
         if rule in meta and not ok(value, meta[rule]):
             allowed = text.format(meta[rule])
-            raise ConfigError(f"scene key '{path}' = {_fmt(value)}{where} is not allowed: must be {allowed}")
+            raise ConfigError(
+                f"scene key '{path}' = {_fmt(value)}{where} is not allowed: must be {allowed}"
+            )
     if "choices" in meta and value not in meta["choices"]:
         allowed = ", ".join(str(c) for c in meta["choices"])
         raise ConfigError(f"scene key '{path}' = {_fmt(value)} is not one of: {allowed}")
@@ -300,7 +305,8 @@ def _check_domain(scene: Scene) -> None:
         x0, y0, x1, y1 = dom.rectangle
         if not (x1 > x0 and y1 > y0):
             raise ConfigError(
-                f"scene key 'geometry.domain.rectangle' = {list(dom.rectangle)} needs x1 > x0, y1 > y0"
+                f"scene key 'geometry.domain.rectangle' = {list(dom.rectangle)} "
+                "needs x1 > x0, y1 > y0"
             )
         if dom.boundary_names:
             raise ConfigError("scene key 'geometry.domain.boundary_names' is for polygons only")
@@ -357,7 +363,9 @@ def _check_mechanics(scene: Scene, geo: PlaneGeometry) -> None:
             raise ConfigError(f"scene key '{key}' is required for physics 'mechanics'")
     c = scene.contact
     if c.friction == "tresca" and c.slip_bound is None:
-        raise ConfigError("scene key 'contact.slip_bound' is required when contact.friction is tresca")
+        raise ConfigError(
+            "scene key 'contact.slip_bound' is required when contact.friction is tresca"
+        )
     times = [0.0] if scene.time is None else np.linspace(0, scene.time.final, 5)
     for name in ("young", "poisson"):
         _check_field(getattr(scene.material, name), f"material.{name}",
@@ -480,9 +488,10 @@ def _check_probes(scene: Scene) -> None:
     names: set[str] = set()
     for i, probe in enumerate(scene.probes):
         path = f"probes.{i}"
-        if not probe.name or not all(c.isalnum() or c in "_-" for c in probe.name):
+        if not probe.name[:1].isalnum() or not all(c.isalnum() or c in "_-." for c in probe.name):
             raise ConfigError(f"scene key '{path}.name' = {probe.name!r} is not allowed: "
-                              "use letters, digits, '_' or '-'")
+                              "use letters, digits, '_', '-' or '.' (starting with a letter "
+                              "or digit)")
         if probe.name in names:
             raise ConfigError(f"scene key '{path}.name' = {probe.name!r} repeats")
         names.add(probe.name)

@@ -150,7 +150,7 @@ def check_geometry(geo: PlaneGeometry) -> None:
             if _segments_relation(*edges[i], *edges[j], tol) != "disjoint":
                 raise GeometryError(f"domain polygon crosses itself (edges {i} and {j})")
     all_segments = []
-    for k, (pts, name) in enumerate(zip(geo.fractures, geo.fracture_names, strict=True)):
+    for pts, name in zip(geo.fractures, geo.fracture_names, strict=True):
         label = f"fracture '{name}'"
         if len(pts) < 2:
             raise GeometryError(f"{label} has {len(pts)} point(s) (at least 2 needed)")

@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import dolfinx_solver  # noqa: F401
+
 import dolfinx
 import numpy as np
 import numpy.typing as npt
@@ -253,7 +254,8 @@ class MechanicsModel:
         if self.avg is not None:
             q = ufl.TestFunction(self.avg.function_space)
             scale = self.young("+") if isinstance(self.young, fem.Function) else self.young
-            cp = cforms.ContactParameters(**{**c.__dict__, "average_scale": scale / ufl.FacetArea(msh)("+")})
+            weight = scale / ufl.FacetArea(msh)("+")
+            cp = cforms.ContactParameters(**{**c.__dict__, "average_scale": weight})
             residuals.append(
                 cforms.averages_residual(self.kinematics, cp, self.u, self.avg("+"), q("+"), dG)
             )
@@ -299,7 +301,7 @@ class MechanicsModel:
             self.u_prev.x.array[:] = self.u.x.array
 
     def face_fields(self) -> npt.NDArray[np.float64]:
-        """Owned fracture face values of :data:`FACE_FIELDS`, ``(num_owned_faces, 6)`` (collective)."""
+        """Owned fracture face values of :data:`FACE_FIELDS`, ``(faces, 6)`` (collective)."""
         if self.faces is None:
             return np.empty((0, len(FACE_FIELDS)))
         self.faces.x.array[:] = 0.0

@@ -17,6 +17,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import dolfinx_solver  # noqa: F401  (orders MPI before the bindings)
+
 import basix.ufl
 import dolfinx
 import dolfinx.cpp as _cpp
@@ -334,7 +335,8 @@ def create_fractured_mesh(
     bfacets, bedge = _local_entities(msh, tdim - 1, bf, be)
     own = bfacets < num_owned
     return FracturedMesh(
-        msh, geometry, cracked, cracked_cells, faces, facets_all, bfacets[own].astype(np.int32), bedge[own].astype(np.int32),
+        msh, geometry, cracked, cracked_cells, faces, facets_all,
+        bfacets[own].astype(np.int32), bedge[own].astype(np.int32),
         int(len(fid)),
     )
 

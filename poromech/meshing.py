@@ -158,7 +158,8 @@ def _size_fields(gmsh, fracture_curves, sizes: MeshSizes) -> None:
 def _line_elements(gmsh, curve: int) -> npt.NDArray[np.int64]:
     """Node tags of the 2-node line elements on a curve, shape ``(k, 2)``."""
     types, _, nodes = gmsh.model.mesh.getElements(1, curve)
-    out = [np.asarray(nd, dtype=np.int64).reshape(-1, 2) for ty, nd in zip(types, nodes) if ty == 1]
+    out = [np.asarray(nd, dtype=np.int64).reshape(-1, 2)
+           for ty, nd in zip(types, nodes, strict=True) if ty == 1]
     return np.concatenate(out) if out else np.empty((0, 2), dtype=np.int64)
 
 
@@ -185,8 +186,8 @@ def generate_mesh(geo: PlaneGeometry, sizes: MeshSizes) -> MeshArrays:
         index = np.full(int(tags.max()) + 1, -1, dtype=np.int64)
         index[tags] = np.arange(len(tags))
         types, _, nodes = gmsh.model.mesh.getElements(2)
-        tri = [np.asarray(nd, dtype=np.int64).reshape(-1, 3) for ty, nd in zip(types, nodes)
-               if ty == 2]
+        tri = [np.asarray(nd, dtype=np.int64).reshape(-1, 3)
+               for ty, nd in zip(types, nodes, strict=True) if ty == 2]
         cells = index[np.concatenate(tri)]
         ffacets, fid, fseg = [], [], []
         for j, curves in fcurves.items():

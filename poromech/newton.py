@@ -34,6 +34,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import dolfinx_solver  # noqa: F401
+
 import dolfinx
 import numpy as np
 from dolfinx import fem

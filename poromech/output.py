@@ -13,6 +13,7 @@ import json
 from pathlib import Path
 
 import dolfinx_solver  # noqa: F401
+
 import basix.ufl
 import dolfinx
 import numpy as np
@@ -75,7 +76,8 @@ class _DisplacementTransfer:
         self.mesh, source = duplicated_node_mesh(fm)
         self.W = fem.functionspace(self.mesh, ("Lagrange", 1, (2,)))
         self.w = fem.Function(self.W, name="u")
-        out_ids = self.mesh.geometry.input_global_indices[self.mesh.geometry.dofmaps[0][: len(source)]]
+        geo = self.mesh.geometry
+        out_ids = geo.input_global_indices[geo.dofmaps[0][: len(source)]]
         in_ids = fm.cracked_cells[source]
         # position in the fm.msh cell of each output vertex
         pos = np.argmax(out_ids[:, :, None] == in_ids[:, None, :], axis=2)
@@ -133,7 +135,8 @@ class MechanicsOutput:
             with open(self.csv_path, "w", newline="") as fh:
                 csv.writer(fh).writerow(CSV_COLUMNS)
 
-    def write(self, t: float, values: npt.NDArray[np.float64], states: npt.NDArray[np.int8]) -> None:
+    def write(self, t: float, values: npt.NDArray[np.float64],
+              states: npt.NDArray[np.int8]) -> None:
         """Write all outputs at time ``t`` from the owned face values and states."""
         if self.transfer is not None:
             self.u_file.write_function(self.transfer(), t)

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import dolfinx_solver  # noqa: F401
+
 import numpy as np
 from mpi4py import MPI
 

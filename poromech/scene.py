@@ -19,6 +19,7 @@ __all__ = [
     "Domain",
     "FlowBoundaryCondition",
     "Flow",
+    "FractureFlow",
     "FractureSpec",
     "Geometry",
     "Material",
@@ -45,7 +46,8 @@ class Domain:
     """The matrix domain: a rectangle or a polygon."""
 
     rectangle: tuple[float, float, float, float] | None = field(
-        default=None, metadata=doc("[x0, y0, x1, y1]; edges are named bottom, right, top, left", "m")
+        default=None,
+        metadata=doc("[x0, y0, x1, y1]; edges are named bottom, right, top, left", "m"),
     )
     polygon: tuple[tuple[float, float], ...] | None = field(
         default=None, metadata=doc("vertices [[x, y], ...]; edge i joins vertex i and i+1", "m")
@@ -123,7 +125,8 @@ class Contact:
         default=None, metadata=doc("Tresca slip bound s (required for tresca)", "Pa", min=0)
     )
     theta: float = field(
-        default=-1.0, metadata=doc("Nitsche symmetry parameter θ: -1, 0 or 1", "", choices=(-1, 0, 1))
+        default=-1.0,
+        metadata=doc("Nitsche symmetry parameter θ: -1, 0 or 1", "", choices=(-1, 0, 1)),
     )
     beta_n: float = field(default=1e12, metadata=doc("β_n⁰; β_n = β_n⁰/h_σ", "Pa", gt=0))
     beta_t: float = field(default=4e10, metadata=doc("β_τ⁰; β_τ = β_τ⁰/h_σ", "Pa", gt=0))
@@ -173,31 +176,62 @@ class Solver:
 
 @dataclass(frozen=True)
 class FlowBoundaryCondition:
-    """A flow condition on named boundary edges (default: no flow)."""
+    """A flow condition on named boundary edges (unlisted boundaries are impervious)."""
 
     boundary: str = field(metadata=doc("boundary name"))
     pressure: Expr | None = field(default=None, metadata=doc("imposed pressure", "Pa"))
     flux: Expr | None = field(
-        default=None, metadata=doc("imposed outward volumetric flux per area", "m/s")
+        default=None,
+        metadata=doc("imposed outward volumetric flux per area (negative: inflow)", "m/s"),
+    )
+    fracture_ends: Literal["inherit", "no_flow"] = field(
+        default="inherit",
+        metadata=doc("fracture ends on this boundary: inherit its condition (pressure, or the "
+                     "flux through the fracture cross-section d_f) or no_flow"),
+    )
+
+
+@dataclass(frozen=True)
+class FractureFlow:
+    """Flow properties of one named fracture, overriding the fracture defaults of ``flow``."""
+
+    fracture: str = field(metadata=doc("fracture name"))
+    aperture: Expr | None = field(default=None, metadata=doc("aperture d_f", "m", gt=0))
+    permeability: Expr | None = field(
+        default=None, metadata=doc("tangential permeability K_f,τ", "m²", gt=0)
+    )
+    normal_permeability: Expr | None = field(
+        default=None, metadata=doc("normal permeability Λ_f,n", "m²", gt=0)
+    )
+    conductivity: Expr | None = field(
+        default=None, metadata=doc("conductivity C_f (replaces K_f,τ d_f)", "m³", gt=0)
     )
 
 
 @dataclass(frozen=True)
 class Flow:
-    """Single-phase Darcy flow in matrix and fractures (HFV)."""
+    """Single-phase Darcy flow in matrix and fractures (HFV, DESIGN §5)."""
 
     permeability: tuple[Expr, ...] = field(
-        metadata=doc("matrix permeability: [k] or [k_xx, k_yy] or [k_xx, k_xy, k_yy]", "m²", gt=0)
+        metadata=doc("matrix permeability: [k] or [k_xx, k_yy] or [k_xx, k_xy, k_yy]", "m²")
     )
     viscosity: float = field(default=1e-3, metadata=doc("fluid viscosity η", "Pa·s", gt=0))
     aperture: Expr = field(default=Expression(1e-4), metadata=doc("fracture aperture d_f", "m",
                                                                    gt=0))
     fracture_permeability: Expr | None = field(
-        default=None, metadata=doc("tangential fracture permeability (default d_f²/12)", "m²", gt=0)
+        default=None,
+        metadata=doc("tangential fracture permeability K_f,τ (default d_f²/12)", "m²", gt=0),
     )
     fracture_normal_permeability: Expr | None = field(
-        default=None, metadata=doc("normal fracture permeability Λ_f,n (default d_f²/12)", "m²",
-                                   gt=0)
+        default=None, metadata=doc("normal fracture permeability Λ_f,n (default d_f²/12); "
+                                   "T_f = 2 Λ_f,n / d_f", "m²", gt=0)
+    )
+    fracture_conductivity: Expr | None = field(
+        default=None,
+        metadata=doc("fracture conductivity C_f (default K_f,τ d_f, i.e. d_f³/12)", "m³", gt=0),
+    )
+    fractures: tuple[FractureFlow, ...] = field(
+        default=(), metadata=doc("per-fracture values overriding the fracture defaults")
     )
     source: Expr = field(default=Expression(0.0), metadata=doc("matrix volumetric source", "1/s"))
     fracture_source: Expr = field(
@@ -206,14 +240,27 @@ class Flow:
     boundary_conditions: tuple[FlowBoundaryCondition, ...] = field(
         default=(), metadata=doc("pressure / flux conditions; other boundaries are impervious")
     )
-    initial_pressure: Expr = field(default=Expression(0.0), metadata=doc("initial pressure", "Pa"))
+    initial_pressure: Expr = field(
+        default=Expression(0.0), metadata=doc("initial pressure p⁰ (transient)", "Pa")
+    )
     porosity: float = field(default=0.0, metadata=doc("initial matrix porosity φ⁰ (transient)", "",
                                                       min=0, max=1))
     biot_modulus: float | None = field(
-        default=None, metadata=doc("Biot modulus M (matrix storage 1/M, transient)", "Pa", gt=0)
+        default=None,
+        metadata=doc("Biot modulus M, matrix storage 1/M (transient; absent: no storage)", "Pa",
+                     gt=0),
+    )
+    stabilization: float | None = field(
+        default=None, metadata=doc("HFV stabilization β (default √d)", "", gt=0)
+    )
+    linear_solver: Literal["iterative", "direct"] = field(
+        default="iterative",
+        metadata=doc("defaults of the flow_ solver: iterative (CG + GAMG) or direct (MUMPS)"),
     )
     petsc: dict[str, str | float | int | bool | None] = field(
-        default_factory=dict, metadata=doc("PETSc options for the flow solver, without flow_")
+        default_factory=dict,
+        metadata=doc("PETSc options for the flow solver, without the flow_ prefix; null removes "
+                     "a default"),
     )
 
 
@@ -225,6 +272,11 @@ class Probe:
     start: tuple[float, float] = field(metadata=doc("start point", "m"))
     end: tuple[float, float] = field(metadata=doc("end point", "m"))
     samples: int = field(default=201, metadata=doc("number of sample points", "", min=2))
+    interpolation: Literal["linear", "constant"] = field(
+        default="linear",
+        metadata=doc("linear: p_m from the HFV cell gradient, p_f linear between face and node "
+                     "values; constant: the cell / face value"),
+    )
 
 
 @dataclass(frozen=True)

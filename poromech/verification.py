@@ -10,6 +10,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import dolfinx_solver  # noqa: F401
+
 import numpy as np
 import numpy.typing as npt
 from dolfinx import fem
@@ -118,8 +119,10 @@ def sneddon_jump(a: float, p: float, E: float, nu: float):
 
 
 def inclined_crack_jump(b: float, psi: float, sigma: float, F: float, E: float, nu: float):
-    """Exact jump of the inclined frictional crack, from the slip field on both faces (the ``+``
-    face is the one ``n⁺`` points out of)."""
+    """Exact jump of the inclined frictional crack, from the slip field on both faces.
+
+    The ``+`` face is the one ``n⁺`` points out of.
+    """
     from poromech.analytic import inclined_crack_slip_field
 
     def exact(points, normals):

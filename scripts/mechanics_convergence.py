@@ -22,6 +22,7 @@ import time
 from pathlib import Path
 
 import dolfinx_solver  # noqa: F401
+
 import numpy as np
 from mpi4py import MPI
 
@@ -86,7 +87,7 @@ def fastest_at(rows: list[dict], target: float) -> tuple[str, float] | None:
     for key in keys:
         rs = sorted([r for r in rows if (r["formulation"], r["theta"], r["degree"]) == key],
                     key=lambda r: r["level"])
-        for a, b in zip(rs, rs[1:]):
+        for a, b in zip(rs, rs[1:], strict=False):
             if a["l2"] >= target >= b["l2"]:
                 w = np.log(a["l2"] / target) / np.log(a["l2"] / b["l2"])
                 t = np.exp((1 - w) * np.log(a["time_total"]) + w * np.log(b["time_total"]))
@@ -99,14 +100,15 @@ def fastest_at(rows: list[dict], target: float) -> tuple[str, float] | None:
 
 def write_markdown(rows: list[dict], path: Path, command: str) -> None:
     """Tables per scene with observed rates, and the fastest variant per accuracy."""
-    lines = [f"# Error against run time of the contact formulations",
+    lines = ["# Error against run time of the contact formulations",
              "", f"Generated {datetime.date.today()} by `{command}` "
              f"({MPI.COMM_WORLD.size} MPI rank(s)). Errors: relative L² and max norm of the "
              "jump on Γ against the exact solution; time: mesh + setup + Newton solve (s), "
              "forms already compiled.", ""]
     for name in SCENES:
         lines += [f"## {name}", "",
-                  "| variant | P | level | dofs | Newton it | L² error | rate | max error | time (s) |",
+                  "| variant | P | level | dofs | Newton it | L² error | rate | max error "
+                  "| time (s) |",
                   "|---|---|---|---|---|---|---|---|---|"]
         sub = [r for r in rows if r["scene"] == name]
         for formulation, theta in VARIANTS:
@@ -140,8 +142,8 @@ def plot(rows: list[dict], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, len(SCENES), figsize=(11, 4.2))
-    markers = dict(zip([label(*v) for v in VARIANTS], "osD^v<"))
-    for ax, name in zip(axes, SCENES):
+    markers = dict(zip([label(*v) for v in VARIANTS], "osD^v<", strict=False))
+    for ax, name in zip(axes, SCENES, strict=False):
         for formulation, theta in VARIANTS:
             for degree, ls in ((1, "--"), (2, "-")):
                 rs = sorted([r for r in rows if r["scene"] == name and r["formulation"] ==

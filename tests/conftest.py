@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dolfinx_solver  # noqa: F401, I001  (loads MPI before any DOLFINx/PETSc import in tests)
 import json
 import os
 import shutil
@@ -10,6 +9,8 @@ import subprocess
 import sys
 import textwrap
 from pathlib import Path
+
+import dolfinx_solver  # noqa: F401, I001  (loads MPI before any DOLFINx/PETSc import in tests)
 
 import pytest
 
@@ -30,7 +31,8 @@ def run_parallel(code: str, nprocs: int = 2, timeout: float = 600.0) -> dict:
 
     Fails the test (never skips) when the run fails.
     """
-    script = Path(os.environ.get("TMPDIR", "/tmp")) / f"poromech_mpi_{os.getpid()}_{abs(hash(code))}.py"
+    tmp = Path(os.environ.get("TMPDIR", "/tmp"))
+    script = tmp / f"poromech_mpi_{os.getpid()}_{abs(hash(code))}.py"
     script.write_text(textwrap.dedent(code))
     try:
         proc = subprocess.run(
@@ -40,7 +42,8 @@ def run_parallel(code: str, nprocs: int = 2, timeout: float = 600.0) -> dict:
     finally:
         script.unlink(missing_ok=True)
     if proc.returncode != 0:
-        pytest.fail(f"mpirun failed ({proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
+        pytest.fail(f"mpirun failed ({proc.returncode}):\n{proc.stdout[-3000:]}\n"
+                    f"{proc.stderr[-3000:]}")
     lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("{")]
     if not lines:
         pytest.fail(f"no JSON result from the parallel run:\n{proc.stdout[-3000:]}")

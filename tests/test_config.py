@@ -84,7 +84,8 @@ def test_valid_network_and_string_numbers():
 
 def test_overrides():
     raw = mechanics_scene()
-    out = apply_overrides(raw, ["contact.formulation=mixed", "boundary_conditions.1.displacement=[0.001, 0]",
+    out = apply_overrides(raw, ["contact.formulation=mixed",
+                                "boundary_conditions.1.displacement=[0.001, 0]",
                                 "mesh.refinement=2", "solver.petsc.snes_max_it=7"])
     scene = scene_from_dict(out)
     assert scene.contact.formulation == "mixed"

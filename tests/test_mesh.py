@@ -1,5 +1,7 @@
 """Fractured meshes: duplicated-node spaces, orientation, arc length, refinement family."""
 
+import dolfinx_solver  # noqa: F401
+
 import numpy as np
 import pytest
 import ufl
@@ -7,10 +9,9 @@ from conftest import mechanics_scene, run_parallel
 from dolfinx import fem
 from mpi4py import MPI
 
-import dolfinx_solver  # noqa: F401
 from poromech.config import plane_geometry, scene_from_dict
 from poromech.geometry import segment_normals
-from poromech.mesh import FRACTURE_TAG, cracked_space, crack_vertices, fracture_measure
+from poromech.mesh import FRACTURE_TAG, crack_vertices, cracked_space, fracture_measure
 from poromech.meshing import generate_mesh
 from poromech.run import build_mesh, mesh_sizes
 
@@ -123,7 +124,7 @@ def test_refinement_family():
                                                       "refinement": m}))
         a = generate_mesh(plane_geometry(scene), mesh_sizes(scene))
         counts.append((len(a.cells), len(a.fracture_facets)))
-    for (c0, f0), (c1, f1) in zip(counts, counts[1:]):
+    for (c0, f0), (c1, f1) in zip(counts, counts[1:], strict=False):
         assert c1 == 4 * c0 and f1 == 2 * f0
 
 
@@ -166,7 +167,8 @@ def test_parallel_dofs_and_partition_on_fracture():
     # faces of 'bar' whose + and - cells are on different ranks' sides: the cut lies on it
     imap = fm.msh.topology.index_map(2)
     bar = f.fracture == 1
-    ghost_side = np.count_nonzero((f.plus[bar, 0] >= imap.size_local) | (f.minus[bar, 0] >= imap.size_local))
+    nl = imap.size_local
+    ghost_side = np.count_nonzero((f.plus[bar, 0] >= nl) | (f.minus[bar, 0] >= nl))
     out["cut_faces"] = comm.allreduce(int(ghost_side))
     if comm.rank == 0:
         print(json.dumps(out))

@@ -1,0 +1,150 @@
+"""Sampling of cell-wise and fracture-face data along straight lines (collective).
+
+A :class:`LineSampler` places ``samples`` equidistant points on a segment. Cell data are read
+from the owned cell containing each point; a point on a shared edge or vertex takes the cell
+with the smallest *input* (original) index, so the answer does not depend on the partition.
+Optionally a cell gradient gives the linear reconstruction ``v_K + g_K·(x - x_K)``. Face data
+(one value per fracture face, optionally with values at the face ends for a piecewise linear
+profile) are read only where the line runs *along* a fracture: a face counts when both its end
+points lie on the line. Results are gathered on rank 0, NaN where a
+point has no value; :func:`write_csv` writes them with empty fields there.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import dolfinx_solver  # noqa: F401  (orders MPI before the bindings)
+
+import dolfinx
+import numpy as np
+import numpy.typing as npt
+from mpi4py import MPI
+
+__all__ = ["LineSampler", "write_csv"]
+
+Array = npt.NDArray[np.float64]
+
+
+def _global_choice(comm: MPI.Comm, key: Array) -> npt.NDArray[np.bool_]:
+    """Mask of the points for which this rank holds the smallest key over all ranks."""
+    best = np.empty_like(key)
+    comm.Allreduce(key, best, op=MPI.MIN)
+    return np.isfinite(key) & (key == best)
+
+
+class LineSampler:
+    """Sample points on the segment ``[start, end]`` and where they lie (collective).
+
+    Args:
+        msh: The mesh (triangles).
+        start: First point (m).
+        end: Last point (m).
+        samples: Number of points (>= 2).
+        faces: Optional ``(segments (nf, 2, 2), keys (nf,))`` of the owned fracture faces,
+            with partition-independent keys (global face numbers).
+    """
+
+    def __init__(self, msh: dolfinx.mesh.Mesh, start, end, samples: int,
+                 faces: tuple[Array, Array] | None = None):
+        self.comm = msh.comm
+        self.start, self.end = np.asarray(start, float), np.asarray(end, float)
+        s = np.linspace(0.0, 1.0, samples)
+        self.points = self.start + s[:, None] * (self.end - self.start)
+        self.arc_length = s * float(np.linalg.norm(self.end - self.start))
+        self._cell, self._mine = self._locate_cells(msh)
+        self._face, self._face_mine = (None, None) if faces is None else self._locate_faces(*faces)
+
+    def _locate_cells(self, msh):
+        nc = msh.topology.index_map(msh.topology.dim).size_local
+        owned = np.arange(nc, dtype=np.int32)
+        tree = dolfinx.geometry.bb_tree(msh, msh.topology.dim, entities=owned)
+        x3 = np.column_stack([self.points, np.zeros(len(self.points))])
+        candidates = dolfinx.geometry.compute_collisions_points(tree, x3)
+        hits = dolfinx.geometry.compute_colliding_cells(msh, candidates, x3)
+        orig = np.asarray(msh.topology.original_cell_index, dtype=np.float64)
+        key = np.full(len(self.points), np.inf)
+        cell = np.full(len(self.points), -1, dtype=np.int64)
+        counts = np.diff(hits.offsets)
+        for i in np.flatnonzero(counts):  # small: the number of sample points
+            links = hits.links(i)
+            links = links[links < nc]
+            if len(links):
+                j = links[np.argmin(orig[links])]
+                key[i], cell[i] = orig[j], j
+        return cell, _global_choice(self.comm, key)
+
+    def _locate_faces(self, segments: Array, keys: Array):
+        direction = self.end - self.start
+        length = float(np.linalg.norm(direction))
+        unit = direction / length
+        normal = np.array([-unit[1], unit[0]])
+        tol = 1e-8 * length
+        rel = segments - self.start
+        along = np.all(np.abs(rel @ normal) <= tol, axis=1)
+        self._face_ends = rel @ unit  # arc length of the two ends of every face
+        lo = self._face_ends.min(axis=1) - tol
+        hi = self._face_ends.max(axis=1) + tol
+        t = self.arc_length
+        key = np.full(len(t), np.inf)
+        face = np.full(len(t), -1, dtype=np.int64)
+        for k in np.flatnonzero(along):  # faces on the line only
+            inside = (t >= lo[k]) & (t <= hi[k]) & (keys[k] < key)
+            key[inside], face[inside] = keys[k], k
+        return face, _global_choice(self.comm, key)
+
+    def _gather(self, local: Array, mine: npt.NDArray[np.bool_]) -> Array | None:
+        values = np.where(mine, local, 0.0)
+        found = mine.astype(np.float64)
+        total = self.comm.reduce(values, op=MPI.SUM, root=0)
+        count = self.comm.reduce(found, op=MPI.SUM, root=0)
+        if self.comm.rank != 0:
+            return None
+        return np.where(count > 0, total, np.nan)
+
+    def cells(self, values: Array, gradients: Array | None = None,
+              centroids: Array | None = None) -> Array | None:
+        """Cell data at the points, on rank 0 (collective).
+
+        Args:
+            values: One value per owned cell.
+            gradients: Optional ``(nc, 2)`` cell gradients for a linear reconstruction.
+            centroids: Cell centres ``(nc, 2)``, required with ``gradients``.
+        """
+        c = np.maximum(self._cell, 0)
+        local = np.asarray(values)[c] if len(values) else np.zeros(len(c))
+        if gradients is not None and len(values):
+            local = local + np.einsum("ni,ni->n", gradients[c], self.points - centroids[c])
+        return self._gather(local, self._mine)
+
+    def faces(self, values: Array, end_values: Array | None = None) -> Array | None:
+        """Face data where the line runs along a fracture, on rank 0 (collective).
+
+        Args:
+            values: One value per owned face (at its midpoint).
+            end_values: Optional ``(nf, 2)`` values at the face ends (same order as the
+                segments): the result is then linear between each end and the midpoint.
+        """
+        if self._face is None:
+            return None if self.comm.rank else np.full(len(self.points), np.nan)
+        f = np.maximum(self._face, 0)
+        local = np.asarray(values)[f] if len(values) else np.zeros(len(f))
+        if end_values is not None and len(values):
+            s0, s1 = self._face_ends[f, 0], self._face_ends[f, 1]
+            mid = 0.5 * (s0 + s1)
+            near1 = np.abs(self.arc_length - s1) < np.abs(self.arc_length - s0)
+            s_end = np.where(near1, s1, s0)
+            v_end = np.where(near1, end_values[f, 1], end_values[f, 0])
+            w = np.clip((self.arc_length - mid) / np.where(s_end != mid, s_end - mid, 1.0), 0, 1)
+            local = (1.0 - w) * local + w * v_end
+        return self._gather(local, self._face_mine)
+
+
+def write_csv(path: Path, columns: dict[str, Array]) -> None:
+    """Write columns to a CSV file (call on one rank); NaN becomes an empty field."""
+    names = list(columns)
+    data = np.column_stack([np.asarray(columns[n], dtype=float) for n in names])
+    lines = [",".join(names)]
+    for row in data:
+        lines.append(",".join("" if np.isnan(v) else f"{v:.12g}" for v in row))
+    Path(path).write_text("\n".join(lines) + "\n")
