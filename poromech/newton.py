@@ -10,11 +10,16 @@ for residuals that are piecewise affine in the unknowns (2D contact with Coulomb
   iteration before Newton lands in the right active set; rejecting such steps (as ``bt`` does)
   replaces them by tiny damped steps that stall. The norm of iteration 0 is left out of the
   window: it is dominated by unmet Dirichlet values, which the first step satisfies exactly.
-* **Cycle guard.** A full step that brings back the residual norm of two iterations before
-  (the ping-pong between two active sets typical of friction) is never accepted as
-  non-monotone.
+* **Cycle guard.** A full step that brings back a residual norm already seen in this solve
+  (an iterate revisited: the ping-pong between active sets typical of friction, of any period)
+  is never accepted as non-monotone.
 * **Safeguarded backtracking** by quadratic interpolation of ``‖F‖²`` with monotone Armijo,
-  down to ``α = 1/64``.
+  down to ``α = 1/64``, then a **step to the first switch**: along the Newton ray the
+  residual is exactly ``(1-α)F₀`` until the first contact-state switch. An accepted step whose
+  residual still lies on that line stops short of the switch, and the next iteration would
+  have the same Jacobian and the same ray (a 10 %-per-iteration creep with quadratic
+  backtracking alone); the switch is located by bisection, with residual evaluations only,
+  and the step ends just beyond it.
 * **Watchdog.** When no trial step decreases the residual, the trial with the smallest residual
   is taken anyway (the active set usually changes and Newton recovers); five consecutive such
   steps end the solve with ``DIVERGED_LINE_SEARCH``.
@@ -100,13 +105,15 @@ class LineSearchParameters:
         armijo: Sufficient-decrease constant ``c``.
         memory: Window ``M`` of the non-monotone reference (largest of the last ``M`` norms).
         alpha_min: Smallest step tried when backtracking.
+        kink_bisections: Bisection steps locating the first contact-state switch on the ray.
         max_watchdog: Consecutive non-decreasing steps allowed before giving up.
-        cycle_tolerance: Relative distance to the norm two iterations back taken as a cycle.
+        cycle_tolerance: Relative distance to an earlier norm taken as a revisited iterate.
     """
 
     armijo: float = 1e-4
     memory: int = 4
     alpha_min: float = 1.0 / 64.0
+    kink_bisections: int = 6
     max_watchdog: int = 5
     cycle_tolerance: float = 1e-8
 
@@ -325,26 +332,60 @@ class _Step:
         snes.computeFunction(s._trial, s._trial_f)
         return s._trial_f.norm()
 
+    def _extend(self, snes, X, Y, f0: float, alpha: float, fa: float,
+                rejected: float) -> tuple[float, float]:
+        """Step just past the first contact-state switch when the accepted step stops short.
+
+        Along the ray the residual is exactly ``(1-α)F₀`` until the first switch. If the accepted
+        point is still on that linear piece, the switch lies between it and the rejected step:
+        it is located by bisection (residual evaluations only) and the step ends just beyond
+        it, so that the active set changes. Stopping short instead would give the same Jacobian
+        and the same ray at the next iteration, and the iteration would creep along it.
+        """
+        p = self.s.ls
+        if abs(fa - (1 - alpha) * f0) > 1e-8 * f0:
+            return alpha, fa
+        lo, hi, f_hi = alpha, rejected, None
+        for _ in range(p.kink_bisections):
+            mid = 0.5 * (lo + hi)
+            fm = self._norm_at(snes, X, Y, mid)
+            if not np.isfinite(fm):
+                hi, f_hi = mid, None
+            elif abs(fm - (1 - mid) * f0) <= 1e-8 * f0:
+                lo = mid
+            else:
+                hi, f_hi = mid, fm
+        if f_hi is not None and f_hi <= (1 - p.armijo * hi) * f0 and hi < rejected:
+            return hi, f_hi
+        return lo, (1 - lo) * f0
+
     def _reference(self, f0: float) -> float:
         """Non-monotone reference: the largest of the last ``M`` norms, iteration 0 excluded."""
         hist = self.s._history
-        return max(hist[1:][-self.s.ls.memory:] + [f0])
+        return max(hist[1:][-(self.s.ls.memory - 1):] + [f0]) if len(hist) > 1 else f0
 
     def _line_search(self, snes, X, F, Y) -> float:
+        """Choose the step; a step that would revisit an iterate (cycle) is halved."""
         s, p = self.s, self.s.ls
         f0 = F.norm()
-        hist = s._history
-        hist.append(f0)
+        alpha, fa = self._choose_step(snes, X, F, Y, f0)
+        s._history.append(f0)
+        if alpha > 0 and any(abs(fa - h) <= p.cycle_tolerance * h for h in s._history):
+            alpha *= 0.5
+        return alpha
+
+    def _choose_step(self, snes, X, F, Y, f0: float) -> tuple[float, float]:
+        """Step length and the residual norm it gives (0 when the search gives up)."""
+        s, p = self.s, self.s.ls
         ref = self._reference(f0)
         f1 = self._norm_at(snes, X, Y, 1.0)
-        cycling = len(hist) >= 2 and abs(f1 - hist[-2]) <= p.cycle_tolerance * hist[-2]
-        if np.isfinite(f1) and (f1 <= (1 - p.armijo) * f0 or
-                                (f1 <= (1 - p.armijo) * ref and not cycling)):
+        if np.isfinite(f1) and (f1 <= (1 - p.armijo) * f0 or f1 <= (1 - p.armijo) * ref):
             s._watchdog = 0
-            return 1.0
-        alpha, fa = 1.0, f1
+            return 1.0, f1
         best = (f1 if np.isfinite(f1) else np.inf, 1.0)
+        alpha, fa = 1.0, f1
         while alpha > p.alpha_min:
+            rejected = alpha
             if np.isfinite(fa):
                 # minimizer of the quadratic through φ(0)=f0², φ'(0)=-2f0², φ(α)=fa²
                 denom = fa**2 - f0**2 + 2 * alpha * f0**2
@@ -357,9 +398,9 @@ class _Step:
                 best = (fa, alpha)
             if np.isfinite(fa) and fa <= (1 - p.armijo * alpha) * f0:
                 s._watchdog = 0
-                return alpha
+                return self._extend(snes, X, Y, f0, alpha, fa, rejected)
         s._watchdog += 1
         if s._watchdog > p.max_watchdog or not np.isfinite(best[0]):
             s._forced_reason = PETSc.SNES.ConvergedReason.DIVERGED_LINE_SEARCH
-            return 0.0
-        return best[1]
+            return 0.0, f0
+        return best[1], best[0]

@@ -12,6 +12,7 @@ point has no value; :func:`write_csv` writes them with empty fields there.
 
 from __future__ import annotations
 
+import csv
 from pathlib import Path
 
 import dolfinx_solver  # noqa: F401  (orders MPI before the bindings)
@@ -21,7 +22,7 @@ import numpy as np
 import numpy.typing as npt
 from mpi4py import MPI
 
-__all__ = ["LineSampler", "write_csv"]
+__all__ = ["LineSampler", "line_differences", "read_csv", "write_csv"]
 
 Array = npt.NDArray[np.float64]
 
@@ -148,3 +149,33 @@ def write_csv(path: Path, columns: dict[str, Array]) -> None:
     for row in data:
         lines.append(",".join("" if np.isnan(v) else f"{v:.12g}" for v in row))
     Path(path).write_text("\n".join(lines) + "\n")
+
+
+def read_csv(path: Path) -> tuple[list[str], np.ndarray]:
+    """Header and float data of a CSV file (empty fields become NaN)."""
+    with open(path) as f:
+        rows = list(csv.reader(f))
+    data = np.array([[float(v) if v.strip() else np.nan for v in r] for r in rows[1:]])
+    return [h.strip() for h in rows[0]], data
+
+
+def line_differences(s_ref, p_ref, s, p, keep=None) -> dict[str, float]:
+    """Differences along a line, trapezoidal rule on the reference points.
+
+    Returns ``rel`` = ‖p - p_ref‖ / ‖p_ref‖ and ``range`` = ‖p - p_ref‖ / (|line|^½ Δp_ref)
+    with Δp_ref = max - min of the reference (the normalization of Flemisch et al. 2018),
+    both in L² along the line; ``keep`` restricts the integral to a mask of reference points.
+    """
+    ok = np.isfinite(p)
+    q = np.interp(s_ref, s[ok], p[ok])
+    w = np.zeros_like(s_ref)
+    ds = np.diff(s_ref)
+    w[:-1] += 0.5 * ds
+    w[1:] += 0.5 * ds
+    if keep is not None:
+        w = w * keep
+    err = np.sqrt(np.sum(w * (q - p_ref) ** 2))
+    return {
+        "rel": float(err / np.sqrt(np.sum(w * p_ref**2))),
+        "range": float(err / np.sqrt(np.sum(w)) / (p_ref.max() - p_ref.min())),
+    }

@@ -153,6 +153,9 @@ class MechanicsSimulation:
         from poromech.newton import SemiSmoothNewton
 
         self.scene, self.timer = scene, timer
+        if scene.contact.formulation == "mixed" and scene.degree == 1:
+            log.warning("mixed with P1 displacements is not inf-sup stable: multipliers are not "
+                        "unique and Newton may not converge; prefer degree 2 or stabilized_mixed")
         with timer.phase("setup"):
             self.model = model = MechanicsModel(fm, scene)
             states = (lambda: model.states(model.face_fields())) if model.faces else None
@@ -187,9 +190,10 @@ class MechanicsSimulation:
             rec = self.solver.solve()
             self.timer.add("assembly", rec.time_assembly)
             self.timer.add("linear_solve", rec.time_linear)
-            entry = {"step": k + 1, "time": t, **rec.as_dict()}
+            wall = self.model.fm.comm.allreduce(time.perf_counter() - t0, op=MPI.MAX)
+            entry = {"step": k + 1, "time": t, "wall_time": wall, **rec.as_dict()}
             self.records.append(entry)
-            _progress(k, len(times), t, rec, time.perf_counter() - t0)
+            _progress(k, len(times), t, rec, wall)
             if not rec.converged:
                 raise SolverError(
                     f"Newton did not converge at t = {t:g} s (step {k + 1}): {rec.reason} after "

@@ -50,10 +50,13 @@ def main() -> None:
     fm = build_mesh(base, comm)
     t_mesh = time.perf_counter() - t0
     rows = []
-    # the linear elastic reference: same space and loads, traction-free fractures, one step
+    # the linear elastic reference: same space and loads, traction-free fractures; the first
+    # solve includes MUMPS's symbolic analysis, the second refactorizes numerically only, as
+    # every Newton iteration does
     elastic = load_scene(None, [f"mesh.refinement={args.refinement}", "contact.formulation=none",
-                                "time={final: 500.0, steps: 1}"])
-    sim, t_elastic, rec = timed_run(elastic, fm)
+                                "time={final: 500.0, steps: 2}", "solver.reuse_jacobian=false"])
+    sim, _, rec = timed_run(elastic, fm)
+    t_first, t_elastic = rec[0]["wall_time"], rec[1]["wall_time"]
     dofs_elastic = sim.model.dof_count()
     sim.close()
     for formulation in ("nitsche", "mixed"):
@@ -68,7 +71,7 @@ def main() -> None:
             "fracture_faces": fm.num_fracture_faces, "steps": len(records),
             "newton_iterations": its, "factorizations": facts,
             "time_solve": t_solve, "time_per_iteration": t_solve / its,
-            "time_linear_elastic": t_elastic,
+            "time_linear_elastic": t_elastic, "time_first_elastic": t_first,
             "ratio": t_solve / its / t_elastic,
         })
         sim.close()
@@ -86,8 +89,10 @@ def main() -> None:
         f"scripts/mechanics_scale.py --refinement {args.refinement}`: the default six-fracture "
         f"scene (5 quasi-static steps to T/4) at refinement {args.refinement}, P2, MUMPS LU. "
         f"Mesh generation and distribution: {t_mesh:.1f} s. The reference is one linear elastic "
-        f"solve of the same size ({dofs_elastic} dofs, traction-free fractures) in the same run, "
-        f"{t_elastic:.2f} s (assembly, factorization, solve, residual check).", "",
+        f"solve of the same size ({dofs_elastic} dofs, traction-free fractures) in the same run: "
+        f"{t_elastic:.2f} s (assembly, numeric factorization, solve, residual check); the very "
+        f"first solve, which also runs MUMPS's symbolic analysis (reused by every later "
+        f"factorization with the same pattern), took {t_first:.2f} s.", "",
         "| formulation | ranks | dofs | steps | Newton it | factorizations | solve (s) | "
         "s / Newton it | ratio to one elastic solve |", "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:

@@ -1,0 +1,132 @@
+"""Fluxes, velocities and the conservation report of a solved :class:`DarcyProblem`.
+
+All fluxes are volumetric and, in 2D, per unit depth (m²/s), already divided by the viscosity.
+Signs: ``cell`` is outward from the cell, ``pair`` goes from the matrix side into the fracture,
+``fracture`` goes from the fracture face towards each of its end nodes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+from mpi4py import MPI
+
+from poromech.flow.problem import DarcyProblem, TimeStep
+
+__all__ = ["Fluxes", "boundary_fluxes", "cell_velocity", "compute_fluxes", "mass_balance"]
+
+Array = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class Fluxes:
+    """Fluxes of the current solution on the owned cells and fracture faces (m²/s).
+
+    Attributes:
+        cell: ``F_{K,σ}/η`` outward through the three faces of each owned cell, ``(nc, 3)``.
+        pair: ``F^{mf}_{K,σ}/η`` from the ``(+, -)`` matrix sides into each fracture face,
+            ``(nf, 2)``.
+        fracture: ``F_{σ,e}/η`` from each fracture face to its two nodes, ``(nf, 2)``.
+    """
+
+    cell: Array
+    pair: Array
+    fracture: Array
+
+
+def compute_fluxes(problem: DarcyProblem) -> Fluxes:
+    """Fluxes of DESIGN §5 from the current solution (local)."""
+    p = problem.p
+    d = problem.dofs
+    dp = p[d.cell][:, None] - p[d.cell_faces]
+    cell = np.einsum("nfg,ng->nf", problem.A_cell, dp)
+    pair = problem.t_pair[:, None] * (p[d.trace] - p[d.fracture][:, None])
+    fracture = problem.T_fracture * (p[d.fracture][:, None] - p[d.node])
+    return Fluxes(cell, pair, fracture)
+
+
+def cell_velocity(problem: DarcyProblem, fluxes: Fluxes) -> Array:
+    """Darcy velocity per owned cell ``u_K = (1/|K|) Σ_σ F_{K,σ} (x_σ - x_K)`` (m/s).
+
+    Exact for a constant velocity, since ``Σ_σ |σ| (x_σ - x_K) n_σᵀ = |K| I``.
+    """
+    g = problem.geom
+    return np.einsum("nf,nfi->ni", fluxes.cell, g.offset) / g.volume[:, None]
+
+
+def boundary_fluxes(problem: DarcyProblem, fluxes: Fluxes) -> dict[str, dict[str, float]]:
+    """Outward flux through each named boundary, matrix and fracture ends (collective).
+
+    Returns:
+        ``{name: {"matrix": .., "fracture": .., "total": ..}}`` in m²/s (per unit depth).
+    """
+    names = problem.fm.geometry.boundary_names
+    unique = sorted(set(names))
+    index = {n: i for i, n in enumerate(unique)}
+    edge_name = np.array([index[n] for n in names] + [-1])
+    b = problem.bdofs
+    out = np.zeros((len(unique), 2))
+    on = b.face_edge >= 0
+    np.add.at(out[:, 0], edge_name[b.face_edge[on]], fluxes.cell[on])
+    on = b.node_edge >= 0
+    np.add.at(out[:, 1], edge_name[b.node_edge[on]], fluxes.fracture[on])
+    out = problem.comm.allreduce(out, op=MPI.SUM)
+    return {n: {"matrix": float(out[i, 0]), "fracture": float(out[i, 1]),
+                "total": float(out[i].sum())} for n, i in index.items()}
+
+
+def _local_terms(problem: DarcyProblem, t: float, step: TimeStep | None):
+    """Sources and accumulation rates of owned cells and fracture faces (m²/s)."""
+    g, f, props = problem.geom, problem.faces, problem.properties
+    q = np.zeros(g.num_cells)
+    qf = np.zeros(len(f.length))
+    if problem.source is not None:
+        q = g.volume * problem.source(g.centroid[:, 0], g.centroid[:, 1], t)
+    if problem.fracture_source is not None:
+        qf = f.length * problem.fracture_source(f.midpoint[:, 0], f.midpoint[:, 1], t)
+    acc, accf = np.zeros_like(q), np.zeros_like(qf)
+    if step is not None:
+        acc = g.volume * (problem.porosity(step) - step.porosity_prev) / step.dt
+        accf = f.length * (props.aperture - step.aperture_prev) / step.dt
+    return q, qf, acc, accf
+
+
+def mass_balance(
+    problem: DarcyProblem, fluxes: Fluxes, t: float = 0.0, step: TimeStep | None = None
+) -> dict[str, float]:
+    """Global and local conservation of the current solution (collective).
+
+    The global residual ``sources - storage rate - boundary outflow`` telescopes the cell,
+    face, fracture and node equations, so it vanishes up to the solver tolerance. The local
+    residuals are the cell and fracture-face balances. Relative values divide by the largest
+    of the total source, storage rate and absolute boundary flux.
+    """
+    comm = problem.comm
+    q, qf, acc, accf = _local_terms(problem, t, step)
+    res_cell = q - acc - fluxes.cell.sum(axis=1)
+    res_frac = qf - accf - (fluxes.fracture.sum(axis=1) - fluxes.pair.sum(axis=1))
+    bnd = boundary_fluxes(problem, fluxes)
+    outflow = sum(v["total"] for v in bnd.values())
+    absflow = comm.allreduce(_boundary_abs(problem, fluxes))
+    sources = comm.allreduce(float(q.sum() + qf.sum()))
+    storage = comm.allreduce(float(acc.sum() + accf.sum()))
+    local = max(np.abs(res_cell).max(initial=0.0), np.abs(res_frac).max(initial=0.0))
+    scale = max(abs(sources), abs(storage), absflow, np.finfo(float).tiny)
+    residual = sources - storage - outflow
+    return {
+        "sources": sources,
+        "storage_rate": storage,
+        "outflow": outflow,
+        "residual": residual,
+        "relative_residual": abs(residual) / scale,
+        "max_local_residual": comm.allreduce(local, op=MPI.MAX) / scale,
+    }
+
+
+def _boundary_abs(problem: DarcyProblem, fluxes: Fluxes) -> float:
+    """Sum of absolute boundary fluxes of this rank (the scale of the balance)."""
+    b = problem.bdofs
+    return float(np.abs(fluxes.cell[b.face_edge >= 0]).sum()
+                 + np.abs(fluxes.fracture[b.node_edge >= 0]).sum())

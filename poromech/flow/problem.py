@@ -1,0 +1,392 @@
+"""The mixed-dimensional HFV Darcy problem: unknowns, coefficients, PETSc system and solves.
+
+This is the entry point a coupled (poromechanical) problem uses. Per time step it passes the
+porosity increments coming from the displacement and the current face apertures, and calls
+:meth:`DarcyProblem.solve`; only values change, never the matrix pattern (DESIGN §5 "Time"):
+
+* matrix cells: ``|K| (φ_Kⁿ - φ_Kⁿ⁻¹)/Δt + (1/η) Σ_σ F_{K,σ} = |K| q_K`` with
+  ``φ_Kⁿ = φ̂_Kⁿ + s_K p_Kⁿ`` (``s_K = 1/M``, ``φ̂_Kⁿ = φ⁰ + b((div uⁿ)_K - (div u⁰)_K) - p⁰/M``);
+* fracture faces: ``|σ| (d_σⁿ - d_σⁿ⁻¹)/Δt + (1/η)(Σ_e F_{σ,e} - Σ_K F^{mf}_{K,σ}) = |σ| q_σ``.
+
+Units are SI: pressure Pa, permeability m², viscosity Pa·s, apertures m, sources 1/s (matrix)
+and m/s (fracture, per fracture area), fluxes per unit depth in 2D.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+
+import dolfinx_solver  # noqa: F401  (orders MPI before the bindings)
+
+import numpy as np
+import numpy.typing as npt
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from poromech.flow import hfv
+from poromech.flow.boundary import FlowBoundary, boundary_dofs
+from poromech.flow.dofs import FlowDofs, number_dofs
+from poromech.flow.entities import CellGeometry, cell_geometry
+from poromech.flow.shift import TraceShift
+from poromech.flow.solver import LinearRecord, LinearSolver
+from poromech.flow.system import (
+    ElementValues,
+    SystemPattern,
+    cell_elements,
+    fracture_elements,
+    pair_elements,
+    shifted_cell_elements,
+)
+from poromech.mesh import FracturedMesh
+
+__all__ = [
+    "DarcyProblem",
+    "FlowBoundary",
+    "FractureFaceData",
+    "FlowProperties",
+    "TimeStep",
+    "fracture_conductivity",
+    "normal_transmissibility",
+]
+
+Array = npt.NDArray[np.float64]
+#: A space-time field ``f(x, y, t)`` evaluated at arrays of points.
+Field = Callable[..., Array]
+
+
+@dataclass(frozen=True)
+class FlowProperties:
+    """Coefficients on the owned cells and owned fracture faces (SI units).
+
+    ``NaN`` in the fracture arrays selects the default law: ``K_f,τ = d_f²/12``,
+    ``Λ_f,n = d_f²/12``, ``C_f = K_f,τ d_f`` (cubic law, DESIGN §1).
+
+    Attributes:
+        permeability: Matrix permeability tensors ``(nc, 2, 2)`` (m²).
+        viscosity: Fluid viscosity ``η`` (Pa·s).
+        aperture: Fracture aperture ``d_f`` per face ``(nf,)`` (m).
+        fracture_permeability: Tangential permeability ``K_f,τ`` ``(nf,)`` (m²).
+        normal_permeability: Normal permeability ``Λ_f,n`` ``(nf,)`` (m²).
+        conductivity: Fracture conductivity ``C_f`` ``(nf,)`` (m³), overrides ``K_f,τ d_f``.
+        storage: Matrix storage ``s_K = 1/M`` ``(nc,)`` (1/Pa); zero for an incompressible
+            fluid and rigid matrix.
+    """
+
+    permeability: Array
+    viscosity: float
+    aperture: Array
+    fracture_permeability: Array
+    normal_permeability: Array
+    conductivity: Array
+    storage: Array
+
+
+@dataclass(frozen=True)
+class TimeStep:
+    """Accumulation data of one implicit Euler step (DESIGN §5 "Time").
+
+    Attributes:
+        dt: Step ``Δt`` (s).
+        porosity_prev: ``φ_Kⁿ⁻¹`` on the owned cells.
+        porosity_fixed: ``φ̂_Kⁿ = φ_Kⁿ - s_K p_Kⁿ``, the pressure-independent part of the new
+            porosity (for a coupled problem ``φ⁰ + b((div uⁿ)_K - (div u⁰)_K) - p⁰/M``).
+        aperture_prev: ``d_σⁿ⁻¹`` on the owned fracture faces (``dⁿ`` is the current aperture
+            of the problem's properties).
+    """
+
+    dt: float
+    porosity_prev: Array
+    porosity_fixed: Array
+    aperture_prev: Array
+
+
+def fracture_conductivity(props: FlowProperties) -> Array:
+    """``C_f = K_f,τ d_f`` with ``K_f,τ = d_f²/12`` by default, or the given ``C_f`` (m³)."""
+    d = props.aperture
+    kt = np.where(np.isnan(props.fracture_permeability), d**2 / 12.0, props.fracture_permeability)
+    return np.where(np.isnan(props.conductivity), kt * d, props.conductivity)
+
+
+def normal_transmissibility(props: FlowProperties) -> Array:
+    """``T_f = 2 Λ_f,n / d_f`` with ``Λ_f,n = d_f²/12`` by default (DESIGN §5) (m)."""
+    d = props.aperture
+    kn = np.where(np.isnan(props.normal_permeability), d**2 / 12.0, props.normal_permeability)
+    return 2.0 * kn / d
+
+
+@dataclass(frozen=True)
+class FractureFaceData:
+    """Owned fracture faces in the order of ``fm.fractures`` (local data).
+
+    Attributes:
+        length: ``|σ|`` (m).
+        midpoint: ``x_σ`` (m).
+        tangent: Unit vector from the face's first node to its second.
+    """
+
+    length: Array
+    midpoint: Array
+    tangent: Array
+
+
+class DarcyProblem:
+    """Mixed-dimensional HFV Darcy flow on a fractured mesh (DESIGN §5); owns its PETSc objects.
+
+    Args:
+        fm: The fractured mesh (the mechanics' partition).
+        properties: Coefficients on the owned entities.
+        boundary: Boundary conditions; unlisted domain edges are impervious.
+        source: Matrix source ``q(x, y, t)`` (1/s), or None.
+        fracture_source: Fracture source ``q_f(x, y, t)`` per fracture area (m/s), or None.
+        prefix: PETSc options prefix.
+        solver: ``iterative`` (CG + GAMG) or ``direct`` (MUMPS) defaults.
+        options: PETSc options merged over the defaults (without the prefix).
+        beta: HFV stabilization ``β`` (default ``√d``).
+        geom: The cell geometry if already computed (else computed here).
+
+    Attributes:
+        geom: Geometry of the owned cells.
+        dofs: The distributed numbering of the unknowns.
+        faces: Owned fracture faces (same order as ``fm.fractures``).
+        bdofs: Where the boundary conditions act.
+        A_cell: Cell matrices ``A_K / η`` of the owned cells, ``(nc, 3, 3)`` (m²/(Pa·s)).
+        t_pair: ``|σ| T_f / η`` of the owned fracture faces (m²/(Pa·s)).
+        T_fracture: ``T_{σ,e} / η`` to both nodes of the owned fracture faces, ``(nf, 2)``.
+        p: Current solution on the local (owned, then ghost) dofs (Pa).
+        records: One :class:`LinearRecord` per solve.
+    """
+
+    def __init__(
+        self,
+        fm: FracturedMesh,
+        properties: FlowProperties,
+        boundary: Sequence[FlowBoundary] = (),
+        source: Field | None = None,
+        fracture_source: Field | None = None,
+        *,
+        prefix: str = "flow_",
+        solver: str = "iterative",
+        options: dict | None = None,
+        beta: float | None = None,
+        geom: CellGeometry | None = None,
+    ):
+        self.fm, self.comm = fm, fm.comm
+        self.geom: CellGeometry = cell_geometry(fm) if geom is None else geom
+        self.dofs: FlowDofs = number_dofs(fm, self.geom)
+        self.faces = _fracture_faces(fm, self.dofs)
+        self.boundary = tuple(boundary)
+        self.bdofs = boundary_dofs(self.dofs, self.geom, fm.geometry.boundary, self.boundary)
+        self.source, self.fracture_source = source, fracture_source
+        self.beta = float(np.sqrt(2.0)) if beta is None else float(beta)
+        self.pattern = SystemPattern(self.dofs, self.bdofs.mask)
+        self.A = self.pattern.create_matrix(self.comm)
+        d = self.dofs
+        self.b = PETSc.Vec().createMPI((d.num_owned, d.num_global), comm=self.comm)
+        self.x = PETSc.Vec().createGhost(d.ghosts.astype(PETSc.IntType),
+                                         (d.num_owned, d.num_global), comm=self.comm)
+        self._global = d.local_to_global(np.arange(d.num_local)).astype(PETSc.IntType)
+        self.solver = LinearSolver(self.A, prefix, solver, options)
+        self.p = np.zeros(d.num_local)
+        self.shift = TraceShift(fm, d, self.geom.facets)
+        self.records: list[LinearRecord] = []
+        self._storage_dt: float | None = None
+        self._guess_set = False
+        self.set_properties(properties)
+
+    # -- coefficients (values only) ---------------------------------------------------------
+    def set_properties(self, properties: FlowProperties) -> None:
+        """Replace all coefficients (collective); matrix values are recomputed at the next solve."""
+        self.properties = properties
+        mob = properties.permeability / properties.viscosity
+        g = self.geom
+        self.A_cell = hfv.cell_matrices(g.area, g.normal, g.offset, g.volume, mob, self.beta)
+        self._update_fracture()
+
+    def set_permeability(self, permeability: Array) -> None:
+        """New matrix permeability tensors ``(nc, 2, 2)`` (m²), values-only update (collective)."""
+        self.set_properties(replace(self.properties, permeability=permeability))
+
+    def set_aperture(self, aperture: Array) -> None:
+        """New fracture apertures ``dⁿ`` on the owned faces (m), values-only update (collective).
+
+        The conductivity (cubic law unless given) and the normal transmissibility follow.
+        """
+        self.properties = replace(self.properties, aperture=np.asarray(aperture, dtype=float))
+        self._update_fracture()
+
+    def _update_fracture(self) -> None:
+        eta = self.properties.viscosity
+        self.t_pair = self.faces.length * normal_transmissibility(self.properties) / eta
+        half = hfv.fracture_half_transmissibilities(
+            self.faces.length, fracture_conductivity(self.properties)) / eta
+        self.T_fracture = np.column_stack([half, half])
+        self._values = None
+        if self.shift.update(self.A_cell, self.t_pair):
+            self._write_guess()
+
+    def element_values(self, dt: float | None) -> ElementValues:
+        """Element matrices for a steady (``dt`` None) or implicit Euler solve."""
+        storage = np.zeros(self.geom.num_cells)
+        if dt is not None:
+            storage = self.geom.volume * self.properties.storage / dt
+        E = cell_elements(self.A_cell)
+        plain, touching = self.pattern.plain_cells, self.pattern.fracture_cells
+        return ElementValues(
+            E[plain],
+            shifted_cell_elements(E[touching], self.shift.cell[touching]),
+            pair_elements(np.concatenate([self.t_pair, self.t_pair]),
+                          np.concatenate([self.shift.pair, self.shift.pair])),
+            fracture_elements(self.T_fracture),
+            storage,
+        )
+
+    # -- solves ---------------------------------------------------------------------------
+    def solve(self, t: float = 0.0, step: TimeStep | None = None) -> LinearRecord:
+        """Solve the steady problem (``step`` None) or one implicit Euler step at time ``t``.
+
+        Collective. Raises :class:`poromech.errors.SolverError` when the solver fails.
+        """
+        if not self._guess_set:
+            self._initial_guess(t)
+        self.assemble_matrix(None if step is None else step.dt)
+        b = self.rhs(t, step)
+        self.b.zeroEntries()
+        self.b.setValues(self._global, b, addv=PETSc.InsertMode.ADD_VALUES)
+        self.b.assemblyBegin()
+        self.b.assemblyEnd()
+        record = self.solver.solve(self.b, self.x)
+        self._read_solution()
+        self.records.append(record)
+        return record
+
+    def assemble_matrix(self, dt: float | None = None) -> None:
+        """Push new matrix values if coefficients or the storage term changed (collective).
+
+        Called by :meth:`solve`; a values-only ``MatSetValuesCOO`` on the fixed pattern.
+        """
+        key = dt if self._has_storage else None
+        if self._values is not None and key == self._storage_dt:
+            return
+        self._values = self.element_values(dt).flat()
+        self.A.setValuesCOO(self._values, addv=PETSc.InsertMode.INSERT_VALUES)
+        self.solver.operator_changed()
+        self._storage_dt = key
+
+    @property
+    def _has_storage(self) -> bool:
+        local = bool(np.any(self.properties.storage > 0))
+        return bool(self.comm.allreduce(local, op=MPI.LOR))
+
+    def rhs(self, t: float, step: TimeStep | None) -> Array:
+        """Local right-hand side (owned and ghost rows) at time ``t``."""
+        d, g, f = self.dofs, self.geom, self.faces
+        b = np.zeros(d.num_local)
+        if self.source is not None:
+            b[d.cell] += g.volume * self.source(g.centroid[:, 0], g.centroid[:, 1], t)
+        if self.fracture_source is not None:
+            b[d.fracture] += f.length * self.fracture_source(f.midpoint[:, 0], f.midpoint[:, 1], t)
+        dof, bc, area = self.bdofs.flux_faces
+        b -= np.bincount(dof, area * self._boundary_values(dof, bc, t), minlength=d.num_local)
+        dof, bc, face = self.bdofs.flux_nodes
+        d_f = self.properties.aperture[face]
+        b -= np.bincount(dof, d_f * self._boundary_values(dof, bc, t), minlength=d.num_local)
+        if step is not None:
+            b[d.cell] += g.volume * (step.porosity_prev - step.porosity_fixed) / step.dt
+            b[d.fracture] -= f.length * (self.properties.aperture - step.aperture_prev) / step.dt
+        values = self._values if self._values is not None else self.element_values(None).flat()
+        return b + self.pattern.dirichlet_rhs(values, self.dirichlet_values(t))
+
+    def _boundary_values(self, dof, bc, t: float) -> Array:
+        """Values of the conditions ``bc`` at the locations of ``dof``."""
+        out = np.zeros(len(dof))
+        x = self.dofs.points[dof]
+        for i, cond in enumerate(self.boundary):
+            sel = bc == i
+            if sel.any():
+                out[sel] = cond.value(x[sel, 0], x[sel, 1], t)
+        return out
+
+    def dirichlet_values(self, t: float) -> Array:
+        """Dirichlet values over the local dofs at time ``t`` (zero elsewhere)."""
+        g = np.zeros(self.dofs.num_local)
+        dof, bc = self.bdofs.dirichlet
+        g[dof] = self._boundary_values(dof, bc, t)
+        return g
+
+    def _initial_guess(self, t: float) -> None:
+        """First guess: the mean Dirichlet value (the pressure level), zero without any."""
+        dof, _ = self.bdofs.dirichlet
+        owned = dof < self.dofs.num_owned
+        g = self.dirichlet_values(t)[dof[owned]]
+        total, count = self.comm.allreduce(np.array([g.sum(), float(len(g))]), op=MPI.SUM)
+        level = total / count if count else 0.0
+        self.set_pressure(lambda x, y, t: np.full_like(x, level), t)
+
+    def _read_solution(self) -> None:
+        """Pressures from the solved variables: traces are ``δ + p_f`` (see ``system``)."""
+        self.x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        with self.x.localForm() as loc:
+            self.p[:] = loc.getArray(readonly=True)
+        self.shift.to_pressure(self.p)
+
+    def set_pressure(self, p: Field, t: float = 0.0) -> None:
+        """Set every unknown from ``p(x, y, t)``: initial state or initial guess (collective)."""
+        pts = self.dofs.points
+        self.p[:] = p(pts[:, 0], pts[:, 1], t)
+        self._write_guess()
+        self._guess_set = True
+
+    def _write_guess(self) -> None:
+        """Put the current pressures into the solution vector (the next initial guess)."""
+        values = self.p.copy()
+        self.shift.to_variables(values)
+        n = self.dofs.num_owned
+        self.x.setValues(self._global[:n], values[:n])
+        self.x.assemble()
+        self._read_solution()
+
+    # -- solution views (owned entities) --------------------------------------------------
+    @property
+    def cell_pressure(self) -> Array:
+        """``p_K`` on the owned cells (Pa)."""
+        return self.p[self.dofs.cell]
+
+    @property
+    def face_pressure(self) -> Array:
+        """Face values seen by each owned cell ``(nc, 3)`` (``p_σ`` or the cell's trace)."""
+        return self.p[self.dofs.cell_faces]
+
+    @property
+    def trace_pressure(self) -> Array:
+        """``(p_{K+,σ}, p_{K-,σ})`` on the owned fracture faces ``(nf, 2)``."""
+        return self.p[self.dofs.trace]
+
+    @property
+    def fracture_pressure(self) -> Array:
+        """``p_{f,σ}`` on the owned fracture faces."""
+        return self.p[self.dofs.fracture]
+
+    @property
+    def node_pressure(self) -> Array:
+        """``p_e`` at the two ends of the owned fracture faces ``(nf, 2)``."""
+        return self.p[self.dofs.node]
+
+    def porosity(self, step: TimeStep) -> Array:
+        """``φ_Kⁿ = φ̂_Kⁿ + s_K p_Kⁿ`` after a step (owned cells)."""
+        return step.porosity_fixed + self.properties.storage * self.cell_pressure
+
+    def destroy(self) -> None:
+        """Free the PETSc objects."""
+        self.solver.destroy()
+        for obj in (self.A, self.b, self.x):
+            obj.destroy()
+
+
+def _fracture_faces(fm: FracturedMesh, dofs: FlowDofs) -> FractureFaceData:
+    """Lengths, midpoints and node-to-node tangents of the owned fracture faces."""
+    ends = dofs.points[dofs.node].reshape(-1, 2, 2)
+    t = ends[:, 1] - ends[:, 0]
+    length = np.linalg.norm(t, axis=1)
+    safe = np.where(length > 0, length, 1.0)
+    return FractureFaceData(length, fm.fractures.midpoint, t / safe[:, None])

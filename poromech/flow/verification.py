@@ -1,0 +1,208 @@
+"""Exact solutions and error norms for verifying the HFV flow module (tests and benchmarks).
+
+* :class:`JumpSolution`: the manufactured solution with pressure jumps of DESIGN §5 on
+  ``Ω = (-1, 1) × (0, 1)`` with the fracture ``{x = 0}``;
+* :class:`Diffusion1D`: decay of a sine mode with storage, ``s ∂p/∂t = (k/η) ∂²p/∂x²``;
+* discrete L² norms over owned cells and fracture faces, reduced over the communicator.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+from mpi4py import MPI
+
+from poromech.flow.boundary import FlowBoundary
+from poromech.flow.hfv import isotropic_tensor
+from poromech.flow.problem import DarcyProblem, FlowProperties, TimeStep
+from poromech.geometry import PlaneGeometry
+from poromech.mesh import FracturedMesh, create_fractured_mesh
+from poromech.meshing import MeshSizes, generate_mesh
+
+__all__ = [
+    "Diffusion1D",
+    "JumpSolution",
+    "build_mesh",
+    "observed_orders",
+    "rectangle",
+]
+
+Array = npt.NDArray[np.float64]
+
+
+def rectangle(x0: float, y0: float, x1: float, y1: float, fractures=()) -> PlaneGeometry:
+    """A rectangle with edges bottom, right, top, left and the given fracture polylines."""
+    boundary = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], dtype=float)
+    fr = tuple(np.asarray(f, dtype=float) for f in fractures)
+    return PlaneGeometry(boundary, ("bottom", "right", "top", "left"), fr,
+                         tuple(f"f{i}" for i in range(len(fr))))
+
+
+def build_mesh(comm: MPI.Comm, geo: PlaneGeometry, size: float, refinement: int = 0,
+               owner=None) -> FracturedMesh:
+    """Mesh ``geo`` with a uniform target size and ``refinement`` splits (collective).
+
+    Args:
+        comm: Communicator.
+        geo: Geometry.
+        size: Element size everywhere (m).
+        refinement: Uniform refinement level.
+        owner: Optional callable ``owner(centroids) -> ranks`` imposing the partition.
+    """
+    arrays = None
+    ranks = None
+    if comm.rank == 0:
+        arrays = generate_mesh(geo, MeshSizes(size, size, size, size, refinement))
+        if owner is not None:
+            ranks = np.asarray(owner(arrays.x[arrays.cells].mean(axis=1)), dtype=np.int32)
+    return create_fractured_mesh(comm, geo, arrays, owner=ranks)
+
+
+def l2(comm: MPI.Comm, weights: Array, values: Array) -> float:
+    """``sqrt(Σ w v²)`` over all ranks (collective)."""
+    return float(np.sqrt(comm.allreduce(float(np.sum(weights * values**2)))))
+
+
+def observed_orders(h: Array, errors: Array) -> Array:
+    """``log(e_i/e_{i+1}) / log(h_i/h_{i+1})`` for successive meshes."""
+    h, e = np.asarray(h, float), np.asarray(errors, float)
+    return np.log(e[:-1] / e[1:]) / np.log(h[:-1] / h[1:])
+
+
+@dataclass(frozen=True)
+class JumpSolution:
+    """Manufactured solution with pressure jumps (DESIGN §5), ``K = I``, ``η = 1``.
+
+    ``p_f = g``, ``p_m = g (a - T_f (a-1) x + x²)`` for ``x < 0`` and
+    ``p_m = g (c + T_f (c-1) x + x²)`` for ``x > 0``, ``g = cos(π y)``. The fracture runs from
+    ``(0, 0)`` to ``(0, 1)``, so its ``+`` side is ``x > 0``. Fracture ends are impervious
+    (``g' = 0`` at ``y = 0, 1``).
+
+    Attributes:
+        a: Trace factor on the ``-`` side (``x < 0``).
+        c: Trace factor on the ``+`` side (``x > 0``).
+        T_f: Normal transmissibility ``2 Λ_f,n / d_f`` (m).
+        C_f: Fracture conductivity (m³).
+        aperture: Aperture used to express ``T_f`` (m).
+    """
+
+    a: float = 2.0
+    c: float = 0.5
+    T_f: float = 3.0
+    C_f: float = 1.0
+    aperture: float = 0.02
+
+    def geometry(self) -> PlaneGeometry:
+        """``(-1, 1) × (0, 1)`` with the fracture ``{x = 0}``."""
+        return rectangle(-1.0, 0.0, 1.0, 1.0, [[[0.0, 0.0], [0.0, 1.0]]])
+
+    def p_m(self, x, y, t=0.0):
+        """Matrix pressure (Pa)."""
+        left = self.a - self.T_f * (self.a - 1) * x + x**2
+        right = self.c + self.T_f * (self.c - 1) * x + x**2
+        return np.cos(np.pi * y) * np.where(x < 0, left, right)
+
+    def p_f(self, x, y, t=0.0):
+        """Fracture pressure (Pa)."""
+        return np.cos(np.pi * y)
+
+    def source(self, x, y, t=0.0):
+        """``q = -Δp_m`` (1/s)."""
+        return np.pi**2 * self.p_m(x, y) - 2.0 * np.cos(np.pi * y)
+
+    def fracture_source(self, x, y, t=0.0):
+        """``q_f = -C_f p_f'' - T_f (p⁺ - p_f) - T_f (p⁻ - p_f)`` (m/s)."""
+        g = np.cos(np.pi * y)
+        return self.C_f * np.pi**2 * g - self.T_f * g * (self.a + self.c - 2.0)
+
+    def problem(self, fm: FracturedMesh, **kwargs) -> DarcyProblem:
+        """The HFV problem of this solution on ``fm`` (collective)."""
+        nc = fm.msh.topology.index_map(2).size_local
+        nf = len(fm.fractures.facets)
+        nan = np.full(nf, np.nan)
+        props = FlowProperties(
+            permeability=isotropic_tensor(np.ones(nc)), viscosity=1.0,
+            aperture=np.full(nf, self.aperture), fracture_permeability=nan,
+            normal_permeability=np.full(nf, 0.5 * self.T_f * self.aperture),
+            conductivity=np.full(nf, self.C_f), storage=np.zeros(nc),
+        )
+        bcs = [FlowBoundary("sides", (1, 3), "pressure", self.p_m),
+               FlowBoundary("ends", (0, 2), "pressure", self.p_m, "no_flow")]
+        return DarcyProblem(fm, props, bcs, self.source, self.fracture_source, **kwargs)
+
+    def errors(self, problem: DarcyProblem) -> dict[str, float]:
+        """Discrete L² errors of cell, trace, fracture and node pressures (collective)."""
+        comm, g, f = problem.comm, problem.geom, problem.faces
+        y = f.midpoint[:, 1]
+        exact_traces = np.column_stack([self.c * np.cos(np.pi * y), self.a * np.cos(np.pi * y)])
+        ends = problem.dofs.points[problem.dofs.node]
+        return {
+            "cell": l2(comm, g.volume, problem.cell_pressure - self.p_m(*g.centroid.T)),
+            "trace": l2(comm, f.length[:, None], problem.trace_pressure - exact_traces),
+            "fracture": l2(comm, f.length, problem.fracture_pressure - self.p_f(0.0, y)),
+            "node": l2(comm, 0.5 * f.length[:, None],
+                       problem.node_pressure - self.p_f(0.0, ends[..., 1])),
+        }
+
+
+@dataclass(frozen=True)
+class Diffusion1D:
+    """``p = P exp(-λ t) sin(π x / L)``, ``λ = k π² / (η s L²)``, on ``(0, L) × (0, H)``.
+
+    Zero pressure on the left and right, no flow on top and bottom, no fractures.
+
+    Attributes:
+        length: ``L`` (m).
+        height: ``H`` (m).
+        mobility: ``k/η`` (m²/(Pa·s)).
+        storage: ``s = 1/M`` (1/Pa).
+        amplitude: ``P`` (Pa).
+    """
+
+    length: float = 1.0
+    height: float = 0.1
+    mobility: float = 1.0
+    storage: float = 1.0
+    amplitude: float = 1.0
+
+    @property
+    def rate(self) -> float:
+        """Decay rate ``λ`` (1/s)."""
+        return self.mobility * np.pi**2 / (self.storage * self.length**2)
+
+    def pressure(self, x, y, t=0.0):
+        """The exact pressure (Pa)."""
+        return self.amplitude * np.exp(-self.rate * t) * np.sin(np.pi * x / self.length)
+
+    def geometry(self) -> PlaneGeometry:
+        """The strip ``(0, L) × (0, H)``."""
+        return rectangle(0.0, 0.0, self.length, self.height)
+
+    def problem(self, fm: FracturedMesh, **kwargs) -> DarcyProblem:
+        """The HFV problem with storage on ``fm`` (collective)."""
+        nc = fm.msh.topology.index_map(2).size_local
+        empty = np.zeros(0)
+        props = FlowProperties(
+            permeability=isotropic_tensor(np.full(nc, self.mobility)), viscosity=1.0,
+            aperture=empty, fracture_permeability=empty, normal_permeability=empty,
+            conductivity=empty, storage=np.full(nc, self.storage),
+        )
+        zero = FlowBoundary("ends", (1, 3), "pressure", lambda x, y, t: np.zeros_like(x))
+        return DarcyProblem(fm, props, [zero], **kwargs)
+
+    def run(self, problem: DarcyProblem, final: float, steps: int) -> float:
+        """Implicit Euler from the exact initial state; relative L² error at ``final``."""
+        problem.set_pressure(self.pressure, 0.0)
+        s = problem.properties.storage
+        phi_prev = s * problem.cell_pressure
+        dt = final / steps
+        for n in range(1, steps + 1):
+            step = TimeStep(dt, phi_prev, np.zeros_like(phi_prev), np.zeros(0))
+            problem.solve(n * dt, step)
+            phi_prev = problem.porosity(step)
+        g = problem.geom
+        exact = self.pressure(*g.centroid.T, final)
+        comm = problem.comm
+        return l2(comm, g.volume, problem.cell_pressure - exact) / l2(comm, g.volume, exact)

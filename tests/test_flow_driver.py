@@ -1,0 +1,197 @@
+"""Flow-only runs through ``run_flow``/``run_scene``: outputs, probes, report, failures, input."""
+
+import csv
+import re
+
+import numpy as np
+import pytest
+from conftest import ROOT, network_geometry
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from poromech.config import ConfigError, load_scene, scene_from_dict
+from poromech.errors import SolverError
+from poromech.flow.driver import run_flow
+from poromech.run import RunContext, build_mesh, run_scene
+from poromech.timing import Timer
+
+comm = MPI.COMM_WORLD
+
+
+def flow_scene(**flow) -> dict:
+    """A small flow scene on the test network: inflow left, pressure right."""
+    scene = {
+        "name": "flow_test",
+        "physics": "flow",
+        "geometry": network_geometry(),
+        "mesh": {"size": 0.1, "fracture_size": 0.05},
+        "flow": {
+            "permeability": [1.0e-12, 2.0e-13, 5.0e-13],
+            "viscosity": 1.0e-3,
+            "aperture": 1.0e-4,
+            "boundary_conditions": [
+                {"boundary": "left", "flux": -1.0e-6},
+                {"boundary": "right", "pressure": "1e5 + 1e3*y"},
+            ],
+        },
+        "probes": [{"name": "bar", "start": [0.0, 0.5], "end": [2.0, 0.5], "samples": 81},
+                   {"name": "vertical", "start": [1.0, 0.0], "end": [1.0, 1.0], "samples": 11}],
+    }
+    scene["flow"].update(flow)
+    return scene
+
+
+def run(raw: dict, outdir) -> RunContext:
+    scene = scene_from_dict(raw)
+    ctx = RunContext(scene, build_mesh(scene, comm), outdir, Timer())
+    run_flow(ctx)
+    return ctx
+
+
+def read_csv(path):
+    with open(path) as f:
+        rows = list(csv.reader(f))
+    return rows[0], rows[1:]
+
+
+def test_steady_outputs_and_report(tmp_path):
+    ctx = run(flow_scene(), tmp_path)
+    for name in ("flow.xdmf", "fractures_flow.xdmf", "probe_bar.csv", "probe_vertical.csv"):
+        assert (tmp_path / name).exists(), name
+    text = (tmp_path / "fractures_flow.xdmf").read_text()
+    for field in ("p_f", "p_plus", "p_minus", "d_f", "u_plus", "u_minus", "q_f"):
+        assert f'Name="{field}"' in text
+    assert 'Name="p_m"' in (tmp_path / "flow.xdmf").read_text()
+    rep = ctx.summary["flow"]
+    assert rep["unknowns"]["total"] > 1000 and rep["unknowns"]["nodes"] > 0
+    solve = rep["solves"][0]
+    assert solve["reason"].startswith("CONVERGED") and 0 < solve["iterations"] < 100
+    assert solve["seconds"] > 0
+    cons = rep["conservation"]
+    assert cons["relative_residual"] < 1e-8 and cons["max_local_residual"] < 1e-8
+    flux = cons["boundary_fluxes"]
+    assert set(flux) == {"bottom", "right", "top", "left"}
+    assert flux["left"]["total"] == pytest.approx(-1e-6, rel=1e-9)  # imposed inflow
+    assert flux["right"]["total"] == pytest.approx(1e-6, rel=1e-6)  # steady: all leaves right
+    header, rows = read_csv(tmp_path / "probe_bar.csv")
+    assert header == ["arc_length", "x", "y", "p_m", "p_f"]
+    x = np.array([float(r[1]) for r in rows])
+    has_pf = np.array([r[4] != "" for r in rows])
+    assert np.array_equal(has_pf, (x >= 0.2 - 1e-12) & (x <= 0.8 + 1e-12))
+    assert all(r[3] != "" for r in rows)
+    _, rows = read_csv(tmp_path / "probe_vertical.csv")
+    assert all(r[4] == "" for r in rows)  # crosses no fracture lengthwise
+
+
+def test_transient_with_storage(tmp_path):
+    raw = flow_scene(biot_modulus=1e9, porosity=0.2, initial_pressure=1e5)
+    raw["time"] = {"final": 100.0, "steps": 4}
+    raw["output"] = {"every": 2}
+    ctx = run(raw, tmp_path)
+    rep = ctx.summary["flow"]
+    assert len(rep["solves"]) == 4
+    assert [s["time"] for s in rep["solves"]] == pytest.approx([25, 50, 75, 100])
+    assert all(s["mass_balance"]["relative_residual"] < 1e-8 for s in rep["solves"])
+    first = rep["solves"][0]["mass_balance"]
+    assert abs(first["storage_rate"]) > 1e-3 * abs(first["outflow"])  # storage is active
+    times = re.findall(r'<Time Value="([^"]+)"', (tmp_path / "flow.xdmf").read_text())
+    assert sorted({float(t) for t in times}) == [0.0, 50.0, 100.0]
+
+
+def test_solver_failure_raises(tmp_path):
+    raw = flow_scene(petsc={"ksp_max_it": 2, "ksp_rtol": 1e-14})
+    scene = scene_from_dict(raw)
+    ctx = RunContext(scene, build_mesh(scene, comm), tmp_path, Timer())
+    with pytest.raises(SolverError) as err:
+        run_flow(ctx)
+    assert err.value.reason == "DIVERGED_MAX_IT"
+    assert len(err.value.history) == 3
+    assert "did not converge" in str(err.value)
+    assert "flow" in ctx.summary
+
+
+def test_command_line_options_win_and_are_not_left(tmp_path):
+    opts = PETSc.Options()
+    opts["flow_ksp_rtol"] = 1e-4
+    try:
+        ctx = run(flow_scene(petsc={"ksp_rtol": 1e-12, "pc_type": "jacobi",
+                                    "ksp_max_it": 5000}), tmp_path)
+    finally:
+        opts.delValue("flow_ksp_rtol")
+    solver = ctx.summary["flow"]["solver"]
+    assert solver["pc_type"] == "jacobi" and solver["max_it"] == 5000  # scene over defaults
+    assert solver["rtol"] == 1e-4  # the command line over the scene
+    assert not [k for k in opts.getAll() if k.startswith("flow_")]
+
+
+def test_direct_solver_matches_iterative(tmp_path):
+    it = run(flow_scene(), tmp_path / "it").summary["flow"]["conservation"]
+    lu = run(flow_scene(linear_solver="direct"), tmp_path / "lu").summary["flow"]
+    assert lu["solver"]["pc_type"] == "lu"
+    assert lu["conservation"]["boundary_fluxes"]["right"]["matrix"] == pytest.approx(
+        it["boundary_fluxes"]["right"]["matrix"], rel=1e-7)
+
+
+BAD = [
+    ({"permeability": [1.0, 2.0, 1.0]}, "flow.permeability' = [1.0, 2.0, 1.0]"),
+    ({"permeability": [1.0, 2.0, 3.0, 4.0]}, "has 4 entries"),
+    ({"fracture_permeability": 1e-8, "fracture_conductivity": 1e-12}, "not both"),
+    ({"fractures": [{"fracture": "nope", "aperture": 1e-3}]}, "'nope' is not a fracture"),
+    ({"aperture": "1e-4*(x - 1)"}, "flow.aperture"),
+    ({"petsc": {"flow_ksp_rtol": 1e-8}}, "without '-' and without the flow_ prefix"),
+    ({"boundary_conditions": [{"boundary": "west", "pressure": 1.0}]}, "'west' is not a boundary"),
+    ({"boundary_conditions": [{"boundary": "left", "pressure": 1.0, "flux": 1.0}]},
+     "exactly one of pressure, flux"),
+    ({"boundary_conditions": [{"boundary": "left", "pressure": 1.0},
+                              {"boundary": "left", "flux": 1.0}]}, "already has a flow condition"),
+    ({"boundary_conditions": [{"boundary": "left", "flux": 1.0}]}, "has no pressure condition"),
+    ({"linear_solver": "amg"}, "flow.linear_solver' = 'amg' is not one of"),
+]
+
+
+@pytest.mark.parametrize("flow, message", BAD)
+def test_bad_flow_input(flow, message):
+    with pytest.raises(ConfigError, match=re.escape(message)) as err:
+        scene_from_dict(flow_scene(**flow))
+    assert "\n" not in str(err.value)
+
+
+def test_bad_probes_and_missing_flow():
+    raw = flow_scene()
+    raw["probes"] = [{"name": "a b", "start": [0, 0], "end": [1, 1]}]
+    with pytest.raises(ConfigError, match="probes.0.name"):
+        scene_from_dict(raw)
+    raw["probes"] = [{"name": "a", "start": [0, 0], "end": [0, 0]}]
+    with pytest.raises(ConfigError, match="equals start"):
+        scene_from_dict(raw)
+    raw = flow_scene()
+    del raw["flow"]
+    with pytest.raises(ConfigError, match="'flow' is required"):
+        scene_from_dict(raw)
+
+
+@pytest.mark.parametrize("name, probe", [("flemisch_case1", "y_-200"),
+                                         ("flemisch_case2", "x_0.5"),
+                                         ("flow_six_fractures", "fracture_5")])
+def test_shipped_flow_scenes_run(tmp_path, name, probe):
+    scene = load_scene(ROOT / "configs" / f"{name}.yaml", ["mesh.refinement=0"])
+    summary = run_scene(scene, tmp_path, comm)
+    assert summary["status"] == "converged"
+    cons = summary["flow"]["conservation"]
+    assert cons["relative_residual"] < 1e-8
+    assert (tmp_path / f"probe_{probe}.csv").exists()
+    if name == "flemisch_case2":  # the fracture y = 0.5 inherits the inflow: d_f q_N = -1e-4
+        assert cons["boundary_fluxes"]["left"]["fracture"] == pytest.approx(-1e-4, rel=1e-6)
+        assert cons["boundary_fluxes"]["left"]["matrix"] == pytest.approx(-1.0, rel=1e-9)
+
+
+def test_aperture_change_is_accumulated(tmp_path):
+    """d_f = 1e-4 (1 + t/10): the fractures store |Γ| d'(t) = |Γ| 1e-5 m²/s (DESIGN §5)."""
+    raw = flow_scene(aperture="1e-4*(1 + t/10)")
+    raw["time"] = {"final": 4.0, "steps": 2}
+    ctx = run(raw, tmp_path)
+    length = ctx.fm.geometry.fracture_lengths().sum()
+    for s in ctx.summary["flow"]["solves"]:
+        bal = s["mass_balance"]
+        assert bal["storage_rate"] == pytest.approx(1e-5 * length, rel=1e-9)
+        assert bal["relative_residual"] < 1e-8
