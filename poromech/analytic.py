@@ -44,6 +44,20 @@ def _elastic(E: float, nu: float) -> tuple[float, float]:
     return E / (2 * (1 + nu)), 3 - 4 * nu
 
 
+def _westergaard(x, y, a: float, load: float, E: float, nu: float):
+    """Westergaard stress function of a crack ``|x| < a`` loaded by ``q`` on its faces.
+
+    Returns ``μ, κ``, ``Z = q (z / sqrt(z² - a²) - 1)``, its primitive
+    ``Ẑ = q (sqrt(z² - a²) - z)``, and ``y``.
+    """
+    mu, kappa = _elastic(E, nu)
+    z = _z(x, y)
+    s = _sqrt_cut(z, a)
+    with np.errstate(all="ignore"):
+        Z = np.where(s == 0, 0.0, load * (z / s - 1.0))
+    return mu, kappa, Z, load * (s - z), np.asarray(y, dtype=np.float64)
+
+
 def sneddon_opening(x, a: float, p: float, E: float, nu: float):
     """Opening ``w = -[[u]]_n`` (m) of Sneddon's pressurized crack at abscissa ``x``."""
     x = np.asarray(x, dtype=np.float64)
@@ -56,13 +70,7 @@ def sneddon_displacement(x, y, a: float, p: float, E: float, nu: float):
     ``Z = p (z / sqrt(z² - a²) - 1)``, ``Ẑ = p (sqrt(z² - a²) - z)``,
     ``2μ u_x = (κ-1)/2 Re Ẑ - y Im Z``, ``2μ u_y = (κ+1)/2 Im Ẑ - y Re Z``.
     """
-    mu, kappa = _elastic(E, nu)
-    z = _z(x, y)
-    s = _sqrt_cut(z, a)
-    with np.errstate(all="ignore"):
-        Z = np.where(s == 0, 0.0, p * (z / s - 1.0))
-    Zh = p * (s - z)
-    yy = np.asarray(y, dtype=np.float64)
+    mu, kappa, Z, Zh, yy = _westergaard(x, y, a, p, E, nu)
     ux = ((kappa - 1) / 2 * Zh.real - yy * Z.imag) / (2 * mu)
     uy = ((kappa + 1) / 2 * Zh.imag - yy * Z.real) / (2 * mu)
     return ux, uy
@@ -70,13 +78,7 @@ def sneddon_displacement(x, y, a: float, p: float, E: float, nu: float):
 
 def _mode2(x, y, a: float, tau: float, E: float, nu: float):
     """Mode II field of a crack on the x axis loaded by a uniform shear ``tau`` on its faces."""
-    mu, kappa = _elastic(E, nu)
-    z = _z(x, y)
-    s = _sqrt_cut(z, a)
-    with np.errstate(all="ignore"):
-        Z = np.where(s == 0, 0.0, tau * (z / s - 1.0))
-    Zh = tau * (s - z)
-    yy = np.asarray(y, dtype=np.float64)
+    mu, kappa, Z, Zh, yy = _westergaard(x, y, a, tau, E, nu)
     ux = ((kappa + 1) / 2 * Zh.imag + yy * Z.real) / (2 * mu)
     uy = (-(kappa - 1) / 2 * Zh.real - yy * Z.imag) / (2 * mu)
     return ux, uy

@@ -355,6 +355,13 @@ def _field_meta(cls, name) -> Mapping:
     return {f.name: f for f in dataclasses.fields(cls)}[name].metadata
 
 
+def check_boundary_name(key: str, name: str, known: set[str]) -> None:
+    """Reject a boundary name that no domain edge has."""
+    if name not in known:
+        raise ConfigError(f"scene key '{key}' = {name!r} is not a boundary "
+                          f"(allowed: {', '.join(sorted(known))})")
+
+
 def _check_mechanics(scene: Scene, geo: PlaneGeometry) -> None:
     from poromech.scene import Material
 
@@ -374,11 +381,7 @@ def _check_mechanics(scene: Scene, geo: PlaneGeometry) -> None:
     fixed = [False, False]
     for i, bc in enumerate(scene.boundary_conditions):
         path = f"boundary_conditions.{i}"
-        if bc.boundary not in known:
-            raise ConfigError(
-                f"scene key '{path}.boundary' = {bc.boundary!r} is not a boundary "
-                f"(allowed: {', '.join(sorted(known))})"
-            )
+        check_boundary_name(f"{path}.boundary", bc.boundary, known)
         if (bc.displacement is None) == (bc.traction is None):
             raise ConfigError(f"scene key '{path}' needs exactly one of displacement, traction")
         if bc.displacement is not None:
@@ -456,11 +459,7 @@ def _check_flow_boundaries(scene: Scene, geo: PlaneGeometry) -> None:
     used: set[str] = set()
     for i, bc in enumerate(flow.boundary_conditions):
         path = f"flow.boundary_conditions.{i}"
-        if bc.boundary not in known:
-            raise ConfigError(
-                f"scene key '{path}.boundary' = {bc.boundary!r} is not a boundary "
-                f"(allowed: {', '.join(sorted(known))})"
-            )
+        check_boundary_name(f"{path}.boundary", bc.boundary, known)
         if bc.boundary in used:
             raise ConfigError(f"scene key '{path}.boundary' = {bc.boundary!r} already has a "
                               "flow condition (one per boundary)")

@@ -123,27 +123,25 @@ def _size_fields(gmsh, fracture_curves, sizes: MeshSizes) -> None:
     field = gmsh.model.mesh.field
     curves = sorted({c for cs in fracture_curves.values() for c in cs})
     fields = []
-    if curves:
+
+    def threshold(kind: str, entities: list[int], size_min: float) -> int:
+        """Size ``size_min`` at the entities, growing to ``size`` over ``transition``."""
         d = field.add("Distance")
-        field.setNumbers(d, "CurvesList", curves)
-        field.setNumber(d, "Sampling", 200)
+        field.setNumbers(d, kind, entities)
+        if kind == "CurvesList":
+            field.setNumber(d, "Sampling", 200)
         th = field.add("Threshold")
         field.setNumber(th, "InField", d)
-        field.setNumber(th, "SizeMin", sizes.fracture_size)
+        field.setNumber(th, "SizeMin", size_min)
         field.setNumber(th, "SizeMax", sizes.size)
         field.setNumber(th, "DistMin", 0.0)
         field.setNumber(th, "DistMax", sizes.transition)
-        fields.append(th)
-        dt = field.add("Distance")
+        return th
+
+    if curves:
         ends = gmsh.model.getBoundary([(1, c) for c in curves], combined=False, oriented=False)
-        field.setNumbers(dt, "PointsList", sorted({abs(t) for _, t in ends}))
-        tt = field.add("Threshold")
-        field.setNumber(tt, "InField", dt)
-        field.setNumber(tt, "SizeMin", sizes.tip_size)
-        field.setNumber(tt, "SizeMax", sizes.size)
-        field.setNumber(tt, "DistMin", 0.0)
-        field.setNumber(tt, "DistMax", sizes.transition)
-        fields.append(tt)
+        fields.append(threshold("CurvesList", curves, sizes.fracture_size))
+        fields.append(threshold("PointsList", sorted({abs(t) for _, t in ends}), sizes.tip_size))
     const = field.add("MathEval")
     field.setString(const, "F", repr(float(sizes.size)))
     fields.append(const)
