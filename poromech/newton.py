@@ -27,8 +27,11 @@ for residuals that are piecewise affine in the unknowns (2D contact with Coulomb
 ``docs/mechanics/robustness.md`` compares it with PETSc's ``basic`` and ``bt`` searches.
 
 The Jacobian of the 2D problems is piecewise constant in the contact states, so the factorization
-is reused whenever the assembled Jacobian is bitwise unchanged (``reuse_jacobian``), and a
-residual evaluated during the line search is not assembled again for the accepted iterate.
+is reused whenever the assembled Jacobian is bitwise unchanged (``reuse_jacobian``); when only a
+few contact states switched since the last factorization, GMRES preconditioned by that stale
+factorization usually gives the direction in a few iterations (``stale_factorization``, options
+prefix ``mech_stale_``), and the matrix is refactorized only if it does not. A residual evaluated
+during the line search is not assembled again for the accepted iterate.
 """
 
 from __future__ import annotations
@@ -65,6 +68,15 @@ DEFAULT_OPTIONS: dict[str, object] = {
     "pc_factor_mat_solver_type": "mumps",
 }
 
+#: GMRES iterations allowed with a stale factorization before refactorizing.
+STALE_MAX_IT = 20
+
+
+def _is_direct(ksp: PETSc.KSP) -> bool:
+    """Whether the KSP applies a factorization (preonly + LU/Cholesky)."""
+    return ksp.getType() == PETSc.KSP.Type.PREONLY and ksp.getPC().getType() in ("lu", "cholesky")
+
+
 _REASONS = {v: k for k, v in vars(PETSc.SNES.ConvergedReason).items() if not k.startswith("_")}
 
 
@@ -88,6 +100,7 @@ class NewtonRecord:
     active_set_changes: list[int] = field(default_factory=list)
     linear_iterations: int = 0
     factorizations: int = 0
+    stale_solves: int = 0
     residual_evaluations: int = 0
     time_assembly: float = 0.0
     time_linear: float = 0.0
@@ -130,6 +143,10 @@ class SemiSmoothNewton:
         options: Options merged over :data:`DEFAULT_OPTIONS` (scene values).
         line_search: ``"contact"`` or a PETSc line search type.
         reuse_jacobian: Reuse the factorization while the Jacobian is bitwise unchanged.
+        stale_factorization: When few contact states changed since the last factorization,
+            first try GMRES preconditioned by that (stale) factorization; refactor only if it
+            does not converge within :data:`STALE_MAX_IT` iterations (PETSc options prefix
+            ``<prefix>stale_``).
         states: Callable returning the contact state codes of the owned faces at the current
             unknowns (for the active-set change count), or None.
     """
@@ -144,6 +161,7 @@ class SemiSmoothNewton:
         options: dict | None = None,
         line_search: str = "contact",
         reuse_jacobian: bool = True,
+        stale_factorization: bool = True,
         states: Callable[[], np.ndarray] | None = None,
     ):
         self.F, self.J, self.u, self.bcs = list(F), [list(r) for r in J], list(unknowns), list(bcs)
@@ -161,6 +179,9 @@ class SemiSmoothNewton:
         self.line_search = line_search
         self.ls = LineSearchParameters()
         self.reuse_jacobian = reuse_jacobian
+        self.stale_factorization = stale_factorization
+        self._stale_ksp = None
+        self._num_faces = 0
         self.states = states
         self.reference_norm = 0.0
         self._forced_reason = None
@@ -184,6 +205,8 @@ class SemiSmoothNewton:
         snes.setFunction(self._residual, self.b)
         snes.setJacobian(self._jacobian, self.A, self.A)
         snes.setFromOptions()
+        if self.stale_factorization:
+            self._stale_ksp = self._create_stale_ksp(prefix)
         if snes.getType() == PETSc.SNES.Type.PYTHON:
             snes.setPythonContext(_Step(self))
         snes.setConvergenceTest(self._converged)
@@ -196,8 +219,9 @@ class SemiSmoothNewton:
     def destroy(self) -> None:
         """Free PETSc objects."""
         for obj in (self.snes, self.A, self.b, self.x, self._trial, self._trial_f,
-                    self._cache_x, self._cache_f):
-            obj.destroy()
+                    self._cache_x, self._cache_f, self._stale_ksp):
+            if obj is not None:
+                obj.destroy()
 
     # -- callbacks --------------------------------------------------------------------------
     def _residual(self, snes, x, b) -> None:
@@ -230,10 +254,33 @@ class SemiSmoothNewton:
         """True when the Jacobian equals the one last factorized (collective)."""
         values = self.A.getValuesCSR()[2]
         same = self._values is not None and np.array_equal(values, self._values)
-        same = self.comm.allreduce(bool(same), op=MPI.LAND)
-        if not same:
-            self._values = values.copy()
-        return same
+        return self.comm.allreduce(bool(same), op=MPI.LAND)
+
+    def factorized(self) -> None:
+        """Remember the values of the Jacobian just factorized."""
+        self._values = self.A.getValuesCSR()[2].copy() if self.reuse_jacobian else None
+
+    def _create_stale_ksp(self, prefix: str) -> PETSc.KSP:
+        """GMRES for Newton directions preconditioned by a stale factorization.
+
+        Options prefix ``<prefix>stale_`` (``mech_stale_ksp_max_it``, ...).
+        """
+        ksp = PETSc.KSP().create(self.comm)
+        ksp.setOptionsPrefix(f"{prefix}stale_")
+        ksp.setType(PETSc.KSP.Type.GMRES)
+        ksp.setTolerances(rtol=1e-10, atol=0.0, max_it=STALE_MAX_IT)
+        # right preconditioning: the test is on the true residual of the current Jacobian
+        ksp.setPCSide(PETSc.PC.Side.RIGHT)
+        ksp.setNormType(PETSc.KSP.NormType.UNPRECONDITIONED)
+        ksp.getPC().setType(PETSc.PC.Type.PYTHON)
+        ksp.setFromOptions()
+        return ksp
+
+    def stale_ksp(self, pc: PETSc.PC) -> PETSc.KSP:
+        """The stale GMRES on the current Jacobian, applying the factorization held by ``pc``."""
+        self._stale_ksp.getPC().setPythonContext(_StalePC(pc))
+        self._stale_ksp.setOperators(self.A, self.A)
+        return self._stale_ksp
 
     def _converged(self, snes, it, norms):
         xnorm, ynorm, fnorm = norms
@@ -262,6 +309,7 @@ class SemiSmoothNewton:
             dolfinx.la.petsc._ghost_update(x, PETSc.InsertMode.INSERT, PETSc.ScatterMode.FORWARD)
             assign(x, self.u)
             s = self.states()
+            self._num_faces = self.comm.allreduce(len(s), op=MPI.SUM)
             if self._last_states is not None and it > 0:
                 self.record.active_set_changes.append(
                     int(self.comm.allreduce(int(np.count_nonzero(s != self._last_states))))
@@ -291,8 +339,18 @@ class SemiSmoothNewton:
         r.reason = _REASONS.get(reason, str(reason))
         r.converged = reason > 0
         r.iterations = self.snes.getIterationNumber()
-        r.linear_iterations = self.snes.getLinearSolveIterations()
+        r.linear_iterations += self.snes.getLinearSolveIterations()
         return r
+
+
+class _StalePC:
+    """Python PC context applying an existing (stale) factorization."""
+
+    def __init__(self, pc: PETSc.PC):
+        self.pc = pc
+
+    def apply(self, pc, x, y) -> None:
+        self.pc.apply(x, y)
 
 
 class _Step:
@@ -303,20 +361,11 @@ class _Step:
 
     def step(self, snes, X, F, Y) -> None:
         s = self.s
-        A = s.A
-        snes.computeJacobian(X, A, A)
-        ksp = snes.getKSP()
-        reuse = s.reuse_jacobian and s.jacobian_unchanged()
-        if not s.reuse_jacobian:
-            s._values = None
-        ksp.setOperators(A, A)
-        ksp.getPC().setReusePreconditioner(reuse)
-        if not reuse:
-            s.record.factorizations += 1
+        snes.computeJacobian(X, s.A, s.A)
         t0 = time.perf_counter()
-        ksp.solve(F, Y)
+        solved = self._solve_linear(snes.getKSP(), F, Y)
         s.record.time_linear += time.perf_counter() - t0
-        if ksp.getConvergedReason() < 0:
+        if not solved:
             s._forced_reason = PETSc.SNES.ConvergedReason.DIVERGED_LINEAR_SOLVE
             s._values = None
             Y.set(0.0)
@@ -325,6 +374,35 @@ class _Step:
         s.record.steps.append(alpha)
         if alpha != 1.0:
             Y.scale(alpha)
+
+    def _solve_linear(self, ksp: PETSc.KSP, F: PETSc.Vec, Y: PETSc.Vec) -> bool:
+        """Newton direction ``J Y = F`` with the cheapest exact-enough solve.
+
+        Reuse the factorization when ``J`` is unchanged; after few contact-state changes try
+        GMRES preconditioned by the stale factorization; otherwise refactorize.
+        """
+        s = self.s
+        has_factor = s._values is not None
+        if has_factor and s.jacobian_unchanged():
+            ksp.getPC().setReusePreconditioner(True)
+            ksp.solve(F, Y)
+            return ksp.getConvergedReason() > 0
+        changes = s.record.active_set_changes[-1] if s.record.active_set_changes else None
+        few = changes is not None and changes <= max(8, s._num_faces // 50)
+        if s.stale_factorization and has_factor and few and _is_direct(ksp):
+            ksp.getPC().setReusePreconditioner(True)  # keep the old factors when applied
+            stale = s.stale_ksp(ksp.getPC())
+            stale.solve(F, Y)
+            s.record.linear_iterations += stale.getIterationNumber()
+            if stale.getConvergedReason() > 0:
+                s.record.stale_solves += 1
+                return True
+        ksp.setOperators(s.A, s.A)
+        ksp.getPC().setReusePreconditioner(False)
+        ksp.solve(F, Y)
+        s.record.factorizations += 1
+        s.factorized()
+        return ksp.getConvergedReason() > 0
 
     def _norm_at(self, snes, X, Y, alpha: float) -> float:
         s = self.s

@@ -153,7 +153,8 @@ class MechanicsSimulation:
         from poromech.newton import SemiSmoothNewton
 
         self.scene, self.timer = scene, timer
-        if scene.contact.formulation == "mixed" and scene.degree == 1:
+        singular = scene.contact.formulation == "mixed" and scene.degree == 1
+        if singular:
             log.warning("mixed with P1 displacements is not inf-sup stable: multipliers are not "
                         "unique and Newton may not converge; prefer degree 2 or stabilized_mixed")
         with timer.phase("setup"):
@@ -163,7 +164,10 @@ class MechanicsSimulation:
                 model.F, model.J, model.unknowns, model.bcs, prefix="mech_",
                 options={**formulation_options(model.params.formulation), **scene.solver.petsc},
                 line_search=scene.solver.line_search,
-                reuse_jacobian=scene.solver.reuse_jacobian, states=states,
+                reuse_jacobian=scene.solver.reuse_jacobian,
+                # a stale factorization of a singular Jacobian is no preconditioner
+                stale_factorization=scene.solver.stale_factorization and not singular,
+                states=states,
             )
         self.records: list[dict] = []
 

@@ -168,6 +168,11 @@ class Solver:
     reuse_jacobian: bool = field(
         default=True, metadata=doc("skip refactorization when the Jacobian did not change")
     )
+    stale_factorization: bool = field(
+        default=True,
+        metadata=doc("after few contact-state changes, try GMRES preconditioned by the last "
+                     "factorization before refactorizing"),
+    )
     petsc: dict[str, str | float | int | bool | None] = field(
         default_factory=dict,
         metadata=doc("PETSc options for the mechanics solver, without the mech_ prefix"),

@@ -142,7 +142,9 @@ def plot(rows: list[dict], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, len(SCENES), figsize=(11, 4.2))
-    markers = dict(zip([label(*v) for v in VARIANTS], "osD^v<", strict=False))
+    labels = [label(*v) for v in VARIANTS]
+    markers = dict(zip(labels, "osD^v<", strict=True))
+    colors = dict(zip(labels, ["C0", "C1", "C2", "C3", "C4", "C5"], strict=True))
     for ax, name in zip(axes, SCENES, strict=False):
         for formulation, theta in VARIANTS:
             for degree, ls in ((1, "--"), (2, "-")):
@@ -152,7 +154,8 @@ def plot(rows: list[dict], path: Path) -> None:
                 if rs:
                     lab = label(formulation, theta)
                     ax.loglog([r["time_total"] for r in rs], [r["l2"] for r in rs], ls,
-                              marker=markers[lab], ms=4, label=f"{lab} P{degree}")
+                              color=colors[lab], marker=markers[lab], ms=4,
+                              label=f"{lab} P{degree}")
         ax.set_xlabel("wall time (s)")
         ax.set_ylabel("relative L² error of the jump")
         ax.set_title(name)
@@ -162,11 +165,28 @@ def plot(rows: list[dict], path: Path) -> None:
     fig.savefig(path, dpi=110)
 
 
+def read_rows(path: Path) -> list[dict]:
+    """Rows of a previous run, with numbers parsed."""
+    ints = {"theta", "degree", "level", "cells", "fracture_faces", "dofs", "newton_iterations"}
+    rows = []
+    for r in csv.DictReader(open(path)):
+        rows.append({k: (v if k in ("scene", "formulation") else int(v) if k in ints
+                         else float(v)) for k, v in r.items()})
+    return rows
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--levels-p1", type=int, default=5, help="refinement levels for P1")
     parser.add_argument("--levels-p2", type=int, default=4, help="refinement levels for P2")
+    parser.add_argument("--from-csv", action="store_true",
+                        help="only rewrite the table and the plot from convergence.csv")
     args = parser.parse_args()
+    if args.from_csv:
+        rows = read_rows(OUT / "convergence.csv")
+        write_markdown(rows, OUT / "convergence.md", "python scripts/mechanics_convergence.py")
+        plot(rows, OUT / "convergence.png")
+        return
     comm = MPI.COMM_WORLD
     OUT.mkdir(parents=True, exist_ok=True)
     rows = []
