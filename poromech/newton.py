@@ -107,7 +107,7 @@ class NewtonRecord:
 
     def as_dict(self) -> dict:
         """JSON-ready summary."""
-        return {k: v for k, v in self.__dict__.items()}
+        return dict(self.__dict__)
 
 
 @dataclass(frozen=True)
@@ -206,7 +206,7 @@ class SemiSmoothNewton:
         snes.setJacobian(self._jacobian, self.A, self.A)
         snes.setFromOptions()
         if self.stale_factorization:
-            self._stale_ksp = self._create_stale_ksp(prefix)
+            self._stale_ksp = self._create_stale_ksp(prefix, snes.getKSP().getPC())
         if snes.getType() == PETSc.SNES.Type.PYTHON:
             snes.setPythonContext(_Step(self))
         snes.setConvergenceTest(self._converged)
@@ -260,8 +260,8 @@ class SemiSmoothNewton:
         """Remember the values of the Jacobian just factorized."""
         self._values = self.A.getValuesCSR()[2].copy() if self.reuse_jacobian else None
 
-    def _create_stale_ksp(self, prefix: str) -> PETSc.KSP:
-        """GMRES for Newton directions preconditioned by a stale factorization.
+    def _create_stale_ksp(self, prefix: str, factor_pc: PETSc.PC) -> PETSc.KSP:
+        """GMRES on the Jacobian preconditioned by the (stale) factorization of ``factor_pc``.
 
         Options prefix ``<prefix>stale_`` (``mech_stale_ksp_max_it``, ...).
         """
@@ -273,14 +273,10 @@ class SemiSmoothNewton:
         ksp.setPCSide(PETSc.PC.Side.RIGHT)
         ksp.setNormType(PETSc.KSP.NormType.UNPRECONDITIONED)
         ksp.getPC().setType(PETSc.PC.Type.PYTHON)
+        ksp.getPC().setPythonContext(_StalePC(factor_pc))
+        ksp.setOperators(self.A, self.A)
         ksp.setFromOptions()
         return ksp
-
-    def stale_ksp(self, pc: PETSc.PC) -> PETSc.KSP:
-        """The stale GMRES on the current Jacobian, applying the factorization held by ``pc``."""
-        self._stale_ksp.getPC().setPythonContext(_StalePC(pc))
-        self._stale_ksp.setOperators(self.A, self.A)
-        return self._stale_ksp
 
     def _converged(self, snes, it, norms):
         xnorm, ynorm, fnorm = norms
@@ -391,7 +387,7 @@ class _Step:
         few = changes is not None and changes <= max(8, s._num_faces // 50)
         if s.stale_factorization and has_factor and few and _is_direct(ksp):
             ksp.getPC().setReusePreconditioner(True)  # keep the old factors when applied
-            stale = s.stale_ksp(ksp.getPC())
+            stale = s._stale_ksp
             stale.solve(F, Y)
             s.record.linear_iterations += stale.getIterationNumber()
             if stale.getConvergedReason() > 0:

@@ -1,8 +1,9 @@
-"""Shared helpers of the flow benchmark scripts: CSV in/out, line norms, Markdown tables."""
+"""Shared helpers of the flow benchmark scripts: CSV, line norms, Markdown tables, figures."""
 
 from __future__ import annotations
 
 import csv
+import datetime
 from pathlib import Path
 
 import numpy as np
@@ -11,6 +12,11 @@ from poromech.probes import line_differences, read_csv  # noqa: F401  (re-export
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs" / "flow"
+
+
+def generated(command: str, ranks: int) -> str:
+    """The dated provenance line that starts every generated document."""
+    return f"Generated {datetime.date.today()} by `{command}` ({ranks} MPI rank(s))"
 
 
 def write_csv(path: Path, header: list[str], rows: list[list]) -> None:
@@ -40,3 +46,27 @@ def save_figure(fig, path: Path, limit_kb: int = 300) -> None:
     size = path.stat().st_size / 1024
     if size > limit_kb:
         raise RuntimeError(f"{path.name} is {size:.0f} KB (limit {limit_kb} KB)")
+
+
+def order_figure(path: Path, x, curves: dict[str, np.ndarray], order: int, reference: str,
+                 xlabel: str, ylabel: str, title: str) -> None:
+    """Log-log errors against a step size, with the expected order, saved as a small PNG.
+
+    The order line starts at the first point of the first curve.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.5, 4.2))
+    for label, y in curves.items():
+        ax.loglog(x, y, "o-", label=label)
+    y0 = next(iter(curves.values()))[0]
+    ax.loglog(x, y0 * (x / x[0]) ** order, "k--", label=reference)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8)
+    save_figure(fig, path)
