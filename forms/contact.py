@@ -18,17 +18,26 @@ with ``S = -F [P_n]_R-`` (Coulomb), ``S = s`` (Tresca), and no tangential terms 
 frictionless. The face averages ``π⁰`` are extra facewise-constant unknowns ("averages") tied to
 ``u`` by linear equations, which keeps the Jacobian exact. Multipliers ``λ = -T`` live in the
 same DG0 space on the fracture faces, in the ``(n⁺, τ)`` basis.
+
+Every fracture integral uses the quadrature of :func:`quadrature_degree` (``2k`` for
+displacements of degree ``k``: ``k + 1`` Gauss points per face). For pointwise ``nitsche`` these
+Gauss points *are* the contact points: the state (open/stick/slip) is decided at each of them,
+so the residual, its Jacobian, the reported face means and the count of active-set changes must
+all use the same points.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import ufl
 
 from poromech.forms.fracture import (
     FractureKinematics,
+    ball_branch,
     ball_projection,
+    contact_branch,
     negative_part,
     normal_jump,
     slip,
@@ -38,12 +47,17 @@ __all__ = [
     "FORMULATIONS",
     "FRICTION_LAWS",
     "ContactParameters",
+    "ContactState",
+    "active_set_code",
     "average_names",
     "averages_residual",
     "complementarity_arguments",
+    "contact_measure",
     "displacement_residual",
     "multiplier_residual",
     "multiplier_size",
+    "pointwise",
+    "quadrature_degree",
     "state_indicators",
 ]
 
@@ -64,6 +78,8 @@ class ContactParameters:
         friction_coefficient: Coulomb coefficient ``F`` (Coulomb only).
         slip_bound: Tresca threshold ``s`` (Pa) (Tresca only).
         average_scale: Weight (Pa/m) of the linear equations defining face averages of jumps.
+        quadrature_degree: Quadrature degree of every fracture integral (None: UFL's estimate);
+            see :func:`quadrature_degree`.
     """
 
     formulation: str
@@ -74,6 +90,7 @@ class ContactParameters:
     friction_coefficient: ufl.core.expr.Expr | None = None
     slip_bound: ufl.core.expr.Expr | None = None
     average_scale: ufl.core.expr.Expr | float = 1.0
+    quadrature_degree: int | None = None
 
     @property
     def tangential(self) -> bool:
@@ -84,6 +101,25 @@ class ContactParameters:
     def active(self) -> bool:
         """Whether the contact conditions are imposed at all."""
         return self.formulation != "none"
+
+
+def quadrature_degree(degree: int) -> int:
+    """Quadrature degree of the fracture integrals for displacements of degree ``degree``.
+
+    ``2k`` integrates the Nitsche terms ``[P_n]_R- [[v]]_n`` exactly on every face where the
+    state does not change (``k + 1`` Gauss points) and the facewise formulations exactly.
+    """
+    return 2 * degree
+
+
+def pointwise(p: ContactParameters) -> bool:
+    """Whether the contact state varies inside a face (pointwise ``nitsche``)."""
+    return p.formulation == "nitsche"
+
+
+def contact_measure(p: ContactParameters, dG):
+    """The fracture measure ``dG`` with the quadrature of ``p``."""
+    return dG if p.quadrature_degree is None else dG(degree=p.quadrature_degree)
 
 
 def multiplier_size(p: ContactParameters) -> int:
@@ -181,7 +217,7 @@ def displacement_residual(fk: FractureKinematics, p: ContactParameters, u, v, dG
                 )
     if not terms:
         return None
-    return sum(terms[1:], terms[0]) * dG
+    return sum(terms[1:], terms[0]) * contact_measure(p, dG)
 
 
 def multiplier_residual(fk: FractureKinematics, p: ContactParameters, u, lam, mu, avg, dG):
@@ -192,7 +228,7 @@ def multiplier_residual(fk: FractureKinematics, p: ContactParameters, u, lam, mu
     form = (lm[0] + negative_part(pn)) * mm[0]
     if p.tangential:
         form += (lm[1] + ball_projection(pt, s)) * mm[1]
-    return form * dG
+    return form * contact_measure(p, dG)
 
 
 def averages_residual(fk: FractureKinematics, p: ContactParameters, u, avg, q, dG):
@@ -207,18 +243,60 @@ def averages_residual(fk: FractureKinematics, p: ContactParameters, u, avg, q, d
     }
     weight = {"jump_n": p.average_scale, "jump_t": p.average_scale}
     form = sum(weight.get(k, 1.0) * (a[k] - exact[k]) * r[k] for k in names)
-    return form * dG
+    return form * contact_measure(p, dG)
 
 
-def state_indicators(fk: FractureKinematics, p: ContactParameters, u, lam=None, avg=None):
-    """Pointwise ``(contact, slip, T_n, T_τ)``: 0/1 indicators and contact tractions (Pa)."""
+class ContactState(NamedTuple):
+    """Pointwise contact state and tractions (UFL expressions).
+
+    Attributes:
+        contact: 1 where the point is closed (``P_n < 0``), else 0.
+        slip: 1 where a closed point slides (``|P_τ| > S``; always when frictionless), else 0.
+            With Tresca friction an open point may slide as well.
+        traction_n: Contact traction ``T_n = [P_n]_R-`` (Pa).
+        traction_t: Tangential traction ``T_τ = [P_τ]_S`` (Pa), 0 when frictionless.
+        bound: Friction bound ``S`` (Pa): ``-F [P_n]_R-`` (Coulomb), ``s`` (Tresca), 0 without
+            friction.
+    """
+
+    contact: ufl.core.expr.Expr
+    slip: ufl.core.expr.Expr
+    traction_n: ufl.core.expr.Expr
+    traction_t: ufl.core.expr.Expr
+    bound: ufl.core.expr.Expr
+
+
+def state_indicators(fk: FractureKinematics, p: ContactParameters, u, lam=None,
+                     avg=None) -> ContactState:
+    """Pointwise contact state, tractions (Pa) and friction bound (Pa), eqs. (4), (7), (8).
+
+    A closed point without friction slides (its tangential traction, 0, is on the bound).
+    """
     pn, pt, s = complementarity_arguments(fk, p, u, lam, avg)
-    contact = ufl.conditional(ufl.lt(pn, 0.0), 1.0, 0.0)
+    closed = ufl.lt(pn, 0.0)
+    contact = ufl.conditional(closed, 1.0, 0.0)
     tn = negative_part(pn)
     if not p.tangential:
-        return contact, 0.0 * contact, tn, 0.0 * tn
+        return ContactState(contact, contact, tn, 0.0 * tn, 0.0 * tn)
     sliding = ufl.gt(abs(pt), s)
     if p.friction == "coulomb":
-        sliding = ufl.And(ufl.lt(pn, 0.0), sliding)
-    slipping = ufl.conditional(sliding, 1.0, 0.0)
-    return contact, slipping, tn, ball_projection(pt, s)
+        sliding = ufl.And(closed, sliding)
+    return ContactState(contact, ufl.conditional(sliding, 1.0, 0.0), tn,
+                        ball_projection(pt, s), s)
+
+
+def active_set_code(fk: FractureKinematics, p: ContactParameters, u, lam=None, avg=None):
+    """Branches of the nonsmooth functions at a point, as a UFL number ``c_n + 2 c_τ``.
+
+    ``c_n = 1`` on the contact branch of ``[P_n]_R-``, ``c_τ`` the branch of ``[P_τ]_S`` (0
+    stick, 1 slip forwards, 2 backwards; see :func:`~poromech.forms.fracture.ball_branch`). The
+    comparisons are those of the residual, so the Jacobian changes exactly where a code does.
+    With Coulomb friction ``c_τ`` counts only on the contact branch: on the open branch
+    ``S = 0`` and every tangential branch has the same (zero) derivative.
+    """
+    pn, pt, s = complementarity_arguments(fk, p, u, lam, avg)
+    cn = ufl.conditional(contact_branch(pn), 1.0, 0.0)
+    if not p.tangential:
+        return cn
+    ct = ball_branch(pt, s)
+    return cn + 2.0 * (cn * ct if p.friction == "coulomb" else ct)

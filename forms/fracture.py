@@ -17,7 +17,9 @@ from poromech.forms.elasticity import sigma
 
 __all__ = [
     "FractureKinematics",
+    "ball_branch",
     "ball_projection",
+    "contact_branch",
     "jump",
     "negative_part",
     "normal_jump",
@@ -57,6 +59,14 @@ def negative_part(x):
     return ufl.conditional(ufl.le(x, 0.0), x, 0.0)
 
 
+def contact_branch(x):
+    """UFL condition ``x <= 0``: the contact branch of ``[x]_R-``, ties included.
+
+    It is the branch whose derivative :func:`negative_part` uses.
+    """
+    return ufl.le(x, 0.0)
+
+
 def positive_part(x):
     """``[x]_R+ = max(0, x)``."""
     return ufl.max_value(x, 0.0)
@@ -69,6 +79,15 @@ def ball_projection(x, radius):
     """
     return ufl.conditional(ufl.le(x, radius), ufl.conditional(ufl.ge(x, -radius), x, -radius),
                            radius)
+
+
+def ball_branch(x, radius):
+    """Branch of ``[x]_α`` as a UFL number: 0 inside (stick), 1 above ``α``, 2 below ``-α``.
+
+    The comparisons are those of :func:`ball_projection`, so the branch is the one whose
+    derivative the Jacobian uses.
+    """
+    return ufl.conditional(ufl.le(x, radius), ufl.conditional(ufl.ge(x, -radius), 0.0, 2.0), 1.0)
 
 
 @dataclass(frozen=True)

@@ -24,6 +24,9 @@ __all__ = [
     "inclined_crack_slip_field",
     "sneddon_displacement",
     "sneddon_opening",
+    "terzaghi_parameters",
+    "terzaghi_pressure",
+    "terzaghi_settlement",
 ]
 
 
@@ -138,3 +141,56 @@ def inclined_crack_displacement(x, y, b: float, psi: float, sigma: float, fricti
     eyy = -(1 + nu) * (1 - nu) * sigma / E
     vx, vy = inclined_crack_slip_field(x, y, b, psi, sigma, friction, E, nu)
     return exx * x + vx, eyy * y + vy
+
+
+def terzaghi_parameters(E: float, nu: float, biot: float, biot_modulus: float,
+                        permeability: float, viscosity: float, load: float) -> dict[str, float]:
+    """Constants of Terzaghi's consolidation of a laterally confined column (plane strain).
+
+    A column under a constant compressive load ``load`` (Pa) on its drained top, impervious
+    elsewhere, with rollers on its sides: the constrained modulus is ``K_v = λ + 2μ``, the
+    undrained pressure ``p_u = b M σ₀ / (K_v + b² M)`` and the consolidation coefficient
+    ``c_v = (k/η) / (1/M + b²/K_v)`` (Wang 2000, §6.2; Verruijt 2013).
+
+    Returns:
+        ``{"K_v", "p_u", "c_v"}`` in Pa, Pa and m²/s.
+    """
+    lam = E * nu / ((1 + nu) * (1 - 2 * nu))
+    mu = E / (2 * (1 + nu))
+    kv = lam + 2 * mu
+    inv_m = 0.0 if biot_modulus == np.inf else 1.0 / biot_modulus
+    pu = biot * load / (kv * inv_m + biot**2)
+    cv = permeability / viscosity / (inv_m + biot**2 / kv)
+    return {"K_v": kv, "p_u": pu, "c_v": cv}
+
+
+def _terzaghi_decay(m, t: float, height: float, c_v: float, steps: int | None):
+    """Decay of the Fourier modes ``m``: exact, or after ``steps`` implicit Euler steps."""
+    rate = m**2 * c_v / height**2
+    if steps is None:
+        return np.exp(-rate * t)
+    return (1.0 + rate * t / steps) ** (-steps)
+
+
+def terzaghi_pressure(z, t: float, height: float, p_u: float, c_v: float, terms: int = 400,
+                      steps: int | None = None):
+    """Excess pore pressure at depth ``z`` below the drained top at time ``t > 0`` (Pa).
+
+    ``p = Σ_k 2 p_u / m_k sin(m_k z / L) exp(-m_k² c_v t / L²)``, ``m_k = (2k+1)π/2``. With
+    ``steps``, each mode decays as after that many implicit Euler steps instead,
+    ``(1 + m_k² c_v Δt / L²)^(-n)``: the solution of the time-discrete, space-exact problem,
+    against which a space discretization error is measured free of time error.
+    """
+    z = np.asarray(z, dtype=np.float64)
+    m = (2 * np.arange(terms) + 1) * np.pi / 2
+    decay = _terzaghi_decay(m, t, height, c_v, steps)
+    return (2 * p_u / m * decay * np.sin(np.multiply.outer(z, m) / height)).sum(axis=-1)
+
+
+def terzaghi_settlement(t: float, height: float, p_u: float, c_v: float, K_v: float,
+                        biot: float, load: float, terms: int = 400,
+                        steps: int | None = None) -> float:
+    """Vertical displacement of the top, ``u_y(L, t) = (b ∫p dz - σ₀ L) / K_v`` (m, < 0)."""
+    m = (2 * np.arange(terms) + 1) * np.pi / 2
+    mean = (2 * p_u / m**2 * _terzaghi_decay(m, t, height, c_v, steps)).sum()
+    return (biot * mean * height - load * height) / K_v

@@ -2,7 +2,14 @@
 
 from __future__ import annotations
 
-__all__ = ["SolverError"]
+__all__ = ["OutputError", "SolverError"]
+
+
+class OutputError(RuntimeError):
+    """An output file could not be written (disk full, quota, permissions); one-line message.
+
+    The files of the steps completed before it stay readable (see :mod:`poromech.xdmf`).
+    """
 
 
 class SolverError(RuntimeError):

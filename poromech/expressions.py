@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["Expression", "ExpressionError", "compile_expression"]
+__all__ = ["Expression", "ExpressionError", "compile_expression", "function_signatures"]
 
 #: Variables every expression may use: coordinates (m) and time (s).
 VARIABLES = ("x", "y", "t")
@@ -68,6 +68,29 @@ _FUNCTIONS: dict[str, Callable] = {
 _FUNCTIONS.update(_analytic_functions())
 _CONSTANTS = {"pi": math.pi, "e": math.e}
 
+#: Arguments each function takes (the NumPy ufuncs' and the analytic fields' signatures).
+_ARITY = {name: 1 for name in _FUNCTIONS}
+_ARITY.update(arctan2=2, min=2, max=2, hypot=2, where=3, clip=3, sneddon_ux=6, sneddon_uy=6,
+              inclined_crack_ux=8, inclined_crack_uy=8)
+_SIGNATURES = {
+    "arctan2": "arctan2(y, x)", "min": "min(a, b)", "max": "max(a, b)", "hypot": "hypot(a, b)",
+    "where": "where(condition, a, b)", "clip": "clip(a, lo, hi)",
+    "sneddon_ux": "sneddon_ux(x, y, a, p, E, nu)", "sneddon_uy": "sneddon_uy(x, y, a, p, E, nu)",
+    "inclined_crack_ux": "inclined_crack_ux(x, y, b, psi, sigma, F, E, nu)",
+    "inclined_crack_uy": "inclined_crack_uy(x, y, b, psi, sigma, F, E, nu)",
+}
+
+
+def function_signatures() -> list[str]:
+    """The functions an expression may call, as ``name(arguments)`` (for documentation)."""
+    return [_SIGNATURES.get(name, f"{name}(a)") for name in _FUNCTIONS]
+
+
+#: Longest expression text, and deepest nesting of its syntax tree (``a+a+...`` of n terms is
+#: n deep): the tree is checked and evaluated recursively.
+MAX_LENGTH = 10_000
+MAX_DEPTH = 500
+
 _BINOPS = {
     ast.Add: np.add,
     ast.Sub: np.subtract,
@@ -94,6 +117,21 @@ def _parse(source: str) -> ast.Expression:
 
 class ExpressionError(ValueError):
     """An expression string that cannot be parsed or uses a forbidden construct."""
+
+
+def _short(text: str) -> str:
+    """The expression text for a message, shortened."""
+    return repr(text) if len(text) <= 60 else repr(text[:57] + "...")
+
+
+def _depth(tree: ast.AST) -> int:
+    """Depth of a syntax tree (iterative: the tree may be deeper than Python's recursion)."""
+    deepest, stack = 0, [(tree, 1)]
+    while stack:
+        node, d = stack.pop()
+        deepest = max(deepest, d)
+        stack.extend((child, d + 1) for child in ast.iter_child_nodes(node))
+    return deepest
 
 
 def _check(node: ast.AST, names: set[str]) -> None:
@@ -127,12 +165,17 @@ def _check(node: ast.AST, names: set[str]) -> None:
             _check(v, names)
     elif isinstance(node, ast.Call):
         if not isinstance(node.func, ast.Name) or node.func.id not in _FUNCTIONS:
-            fname = getattr(node.func, "id", "?")
+            fname = ast.unparse(node.func)
             raise ExpressionError(
                 f"function '{fname}' is not allowed (allowed: {', '.join(sorted(_FUNCTIONS))})"
             )
         if node.keywords:
             raise ExpressionError("keyword arguments are not allowed")
+        name, nargs = node.func.id, len(node.args)
+        if nargs != _ARITY[name] or any(isinstance(a, ast.Starred) for a in node.args):
+            usage = _SIGNATURES.get(name, f"{name}(a)")
+            raise ExpressionError(f"function '{name}' takes {_ARITY[name]} argument"
+                                  f"{'s' if _ARITY[name] > 1 else ''}, not {nargs}: {usage}")
         for a in node.args:
             _check(a, names)
     else:
@@ -244,11 +287,22 @@ def compile_expression(
     if isinstance(source, int | float):
         return Expression(float(source), params)
     if not isinstance(source, str):
-        raise ExpressionError(f"expected a number or an expression string, got {source!r}")
+        raise ExpressionError(f"expected a number or an expression string, got "
+                              f"{type(source).__name__}")
+    text = source.strip()
+    if len(text) > MAX_LENGTH:
+        raise ExpressionError(f"the expression has {len(text)} characters (at most "
+                              f"{MAX_LENGTH}): use parameters or a simpler formula")
     try:
-        tree = _parse(source.strip())
+        tree = _parse(text)
     except SyntaxError as err:
-        raise ExpressionError(f"cannot parse {source!r}: {err.msg}") from None
+        raise ExpressionError(f"cannot parse {_short(text)}: {err.msg}") from None
+    except (RecursionError, MemoryError):
+        raise ExpressionError(f"{_short(text)} is nested too deeply to parse") from None
+    if _depth(tree) > MAX_DEPTH:
+        raise ExpressionError(f"{_short(text)} is nested more than {MAX_DEPTH} levels deep "
+                              "(e.g. a sum of that many terms): use parameters or a simpler "
+                              "formula")
     _check(tree, set(VARIABLES) | {k for k, _ in params})
     expr = Expression(source.strip(), params)
     sample = expr(np.array([0.3]), np.array([0.7]), 0.5)

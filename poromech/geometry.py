@@ -19,6 +19,7 @@ __all__ = [
     "GeometryError",
     "PlaneGeometry",
     "arc_length_positions",
+    "segment_meets_polygon",
     "segment_normals",
 ]
 
@@ -69,6 +70,11 @@ def arc_length_positions(
     start = np.concatenate([[0.0], np.cumsum(lengths)])
     t = np.diff(points, axis=0) / lengths[:, None]
     return start[segment] + np.einsum("ij,ij->i", x - points[segment], t[segment])
+
+
+def _point(p) -> str:
+    """A point for a message: ``(0.5, 1.5)``, plain numbers."""
+    return f"({float(p[0]):g}, {float(p[1]):g})"
 
 
 def _orient(a, b, c) -> float:
@@ -122,6 +128,41 @@ def _point_in_polygon(p, poly, tol: float) -> bool:
     return inside
 
 
+def _in_polygon(points, poly, tol: float) -> npt.NDArray[np.bool_]:
+    """:func:`_point_in_polygon` of many points at once."""
+    a, b = poly, np.roll(poly, -1, axis=0)
+    ab = b - a
+    rel = points[:, None, :] - a[None]
+    s = np.clip(np.einsum("pei,ei->pe", rel, ab) / np.einsum("ei,ei->e", ab, ab), 0.0, 1.0)
+    on = np.any(np.linalg.norm(rel - s[..., None] * ab[None], axis=2) <= tol, axis=1)
+    y = points[:, 1:2]
+    crosses = (a[None, :, 1] > y) != (b[None, :, 1] > y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xc = a[None, :, 0] + (y - a[None, :, 1]) * (ab[None, :, 0] / ab[None, :, 1])
+    inside = np.count_nonzero(crosses & (points[:, 0:1] < xc), axis=1) % 2 == 1
+    return on | inside
+
+
+def _near(s1, s2, tol: float) -> npt.NDArray[np.bool_]:
+    """``(len(s1), len(s2))`` mask of segment pairs whose bounding boxes meet (within ``tol``).
+
+    Segments are ``(k, 2, 2)`` arrays of end points; only such pairs can touch or cross.
+    """
+    lo1, hi1 = s1.min(axis=1) - tol, s1.max(axis=1) + tol
+    lo2, hi2 = s2.min(axis=1), s2.max(axis=1)
+    return np.all((lo1[:, None] <= hi2[None]) & (hi1[:, None] >= lo2[None]), axis=2)
+
+
+def segment_meets_polygon(a, b, polygon: npt.NDArray[np.float64]) -> bool:
+    """True when segment ``[a, b]`` has a point inside the polygon or on its boundary."""
+    tol = 1e-9 * float(np.linalg.norm(polygon.max(axis=0) - polygon.min(axis=0)))
+    if _point_in_polygon(a, polygon, tol) or _point_in_polygon(b, polygon, tol):
+        return True
+    n = len(polygon)
+    return any(_segments_relation(a, b, polygon[i], polygon[(i + 1) % n], tol) != "disjoint"
+               for i in range(n))
+
+
 def check_geometry(geo: PlaneGeometry) -> None:
     """Reject geometries that cannot be meshed or are physically meaningless.
 
@@ -142,13 +183,13 @@ def check_geometry(geo: PlaneGeometry) -> None:
     edges = [(poly[i], poly[(i + 1) % n]) for i in range(n)]
     for i, (a, b) in enumerate(edges):
         if np.linalg.norm(b - a) <= tol:
-            raise GeometryError(f"domain edge {i} has zero length at {tuple(a)}")
-    for i in range(n):
-        for j in range(i + 2, n):
-            if i == 0 and j == n - 1:
-                continue
-            if _segments_relation(*edges[i], *edges[j], tol) != "disjoint":
-                raise GeometryError(f"domain polygon crosses itself (edges {i} and {j})")
+            raise GeometryError(f"domain edge {i} has zero length at {_point(a)}")
+    near_edges = _near(np.array(edges), np.array(edges), tol)
+    for i, j in np.argwhere(np.triu(near_edges, 2)):
+        if i == 0 and j == n - 1:
+            continue
+        if _segments_relation(*edges[i], *edges[j], tol) != "disjoint":
+            raise GeometryError(f"domain polygon crosses itself (edges {i} and {j})")
     all_segments = []
     for pts, name in zip(geo.fractures, geo.fracture_names, strict=True):
         label = f"fracture '{name}'"
@@ -157,30 +198,37 @@ def check_geometry(geo: PlaneGeometry) -> None:
         segs = [(pts[i], pts[i + 1]) for i in range(len(pts) - 1)]
         for i, (a, b) in enumerate(segs):
             if np.linalg.norm(b - a) <= tol:
-                raise GeometryError(f"{label} has a zero-length segment {i} at {tuple(a)}")
-        for i in range(len(segs)):
-            for j in range(i + 1, len(segs)):
-                rel = _segments_relation(*segs[i], *segs[j], tol)
-                if j == i + 1 and rel == "touch":
-                    continue
-                if rel != "disjoint":
-                    raise GeometryError(f"{label} crosses or folds onto itself (segments {i}, {j})")
-        for p in pts:
-            if not _point_in_polygon(p, poly, tol):
-                raise GeometryError(f"{label} has point {tuple(p)} outside the domain")
+                raise GeometryError(f"{label} has a zero-length segment {i} at {_point(a)}")
+        for i, j in np.argwhere(np.triu(_near(np.array(segs), np.array(segs), tol), 1)):
+            rel = _segments_relation(*segs[i], *segs[j], tol)
+            if j == i + 1 and rel == "touch":
+                continue
+            if rel != "disjoint":
+                raise GeometryError(f"{label} crosses or folds onto itself (segments {i}, {j})")
+        outside = ~_in_polygon(pts, poly, tol)
+        if outside.any():
+            p = pts[np.argmax(outside)]
+            raise GeometryError(f"{label} has point {_point(p)} outside the domain")
+        near = _near(np.array(segs), np.array(edges), tol)
+        mid_inside = _in_polygon(0.5 * (pts[:-1] + pts[1:]), poly, tol)
         for i, (a, b) in enumerate(segs):
-            for e, (c, d) in enumerate(edges):
-                rel = _segments_relation(a, b, c, d, tol)
+            for e in np.flatnonzero(near[i]):
+                rel = _segments_relation(a, b, *edges[e], tol)
                 if rel == "cross":
                     raise GeometryError(f"{label} segment {i} crosses domain edge {e}")
                 if rel == "overlap":
                     raise GeometryError(f"{label} segment {i} runs along domain edge {e}")
-            mid = 0.5 * (a + b)
-            if not _point_in_polygon(mid, poly, tol):
+            if not mid_inside[i]:
                 raise GeometryError(f"{label} segment {i} leaves the domain")
         all_segments.append((name, segs))
+    if not all_segments:
+        return
+    # only fractures whose bounding boxes meet can overlap (networks of many fractures)
+    lo = np.array([p.min(axis=0) for p in geo.fractures]) - tol
+    hi = np.array([p.max(axis=0) for p in geo.fractures]) + tol
     for k in range(len(all_segments)):
-        for m in range(k + 1, len(all_segments)):
+        near = np.all((lo[k + 1:] <= hi[k]) & (hi[k + 1:] >= lo[k]), axis=1)
+        for m in k + 1 + np.flatnonzero(near):
             for a, b in all_segments[k][1]:
                 for c, d in all_segments[m][1]:
                     if _segments_relation(a, b, c, d, tol) == "overlap":

@@ -7,29 +7,42 @@ fracture submesh when there are no fractures.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 
 import dolfinx_solver  # noqa: F401
 
+import basix
+import basix.ufl
 import dolfinx
 import numpy as np
 import numpy.typing as npt
 import ufl
 from dolfinx import fem
+from mpi4py import MPI
 
+from poromech.coercivity import symmetric_nitsche_ratio
 from poromech.expressions import Expression
 from poromech.forms import contact as cforms
-from poromech.forms.elasticity import elastic_form
+from poromech.forms.elasticity import biot_stress_form, elastic_form
 from poromech.forms.fracture import FractureKinematics, normal_jump, slip
 from poromech.mesh import FRACTURE_TAG, FracturedMesh, cracked_space, fracture_measure
-from poromech.scene import Scene
+from poromech.scene import Contact, Scene
 
-__all__ = ["FACE_FIELDS", "MechanicsModel", "STATE_NAMES"]
+__all__ = ["FACE_FIELDS", "MechanicsModel", "SLIP_TOLERANCE", "STATE_NAMES"]
 
-#: Fracture face fields (DG0 on the fracture mesh), in storage order.
-FACE_FIELDS = ("jump_n", "jump_t", "traction_n", "traction_t", "contact", "slip")
-#: Contact states written to the output, by code.
+log = logging.getLogger("poromech")
+
+#: Fracture face fields (DG0 on the fracture mesh), in storage order: face means (over the
+#: contact quadrature) of the jumps (m), the contact tractions and the friction bound ``S``
+#: (Pa), and the fractions of the face in contact and sliding.
+FACE_FIELDS = ("jump_n", "jump_t", "traction_n", "traction_t", "friction_bound",
+               "contact_fraction", "slip_fraction")
+#: Contact states written to the output, by code (see :meth:`MechanicsModel.states`).
 STATE_NAMES = ("open", "stick", "slip")
+#: Relative tolerance of "on the friction bound": a closed face slips when
+#: ``|traction_t| >= (1 - SLIP_TOLERANCE) friction_bound``.
+SLIP_TOLERANCE = 1e-6
 
 
 @dataclass
@@ -110,6 +123,7 @@ class MechanicsModel:
                 self.avg = fem.Function(self._dg0(len(names)), name="averages")
                 self.unknowns.append(self.avg)
         self.u_prev = fem.Function(self.V, name="u_prev") if self._quasi_static else None
+        self._pressure_fields(Q0)
         self.kinematics = self._kinematics()
         self.bcs = self._dirichlet()
         self._build_forms()
@@ -122,6 +136,11 @@ class MechanicsModel:
                 and c.friction != "frictionless")
 
     def _contact_parameters(self) -> cforms.ContactParameters:
+        """Contact parameters; ``β⁰`` defaults to multiples of the largest Young's modulus.
+
+        Also sets ``beta0 = (β_n⁰, β_τ⁰)`` (Pa) and ``young_max`` (Pa, at t = 0), and warns when
+        θ = 1 is used below its coercivity bound (:mod:`poromech.coercivity`).
+        """
         c, msh = self.scene.contact, self.fm.msh
         h = ufl.FacetArea(msh)("+")
         fc = fem.Constant(msh, c.friction_coefficient) if c.friction == "coulomb" else None
@@ -129,15 +148,88 @@ class MechanicsModel:
         if c.friction == "tresca":
             s = fem.Constant(msh, c.slip_bound.value())
             self._updaters.append(_Updater(s, (c.slip_bound,)))
+        young = _cell_values(msh, self.scene.material.young)
+        self.young_max = msh.comm.allreduce(float(young.max(initial=0.0)), op=MPI.MAX)
+        self.beta0 = (c.beta_n if c.beta_n is not None else Contact.BETA_N_PER_E * self.young_max,
+                      c.beta_t if c.beta_t is not None else Contact.BETA_T_PER_E * self.young_max)
+        formulation = c.formulation if self.fm.num_fracture_faces else "none"
+        self.warnings: list[str] = []
+        if c.theta == 1 and formulation in ("nitsche", "mean_nitsche", "stabilized_mixed"):
+            self._check_symmetric_nitsche(young)
         return cforms.ContactParameters(
-            formulation=c.formulation if self.fm.num_fracture_faces else "none",
+            formulation=formulation,
             friction=c.friction,
             theta=c.theta,
-            beta_n=fem.Constant(msh, c.beta_n) / h,
-            beta_t=fem.Constant(msh, c.beta_t) / h,
+            beta_n=fem.Constant(msh, self.beta0[0]) / h,
+            beta_t=fem.Constant(msh, self.beta0[1]) / h,
             friction_coefficient=fc,
             slip_bound=s,
+            quadrature_degree=cforms.quadrature_degree(self.scene.degree),
         )
+
+    def _check_symmetric_nitsche(self, young: npt.NDArray[np.float64]) -> None:
+        """Warn when θ = 1 is not guaranteed coercive: ``ρ >= 1`` (collective).
+
+        ``ρ`` is a sufficient local bound, so runs with ``ρ`` somewhat above 1 may still be
+        right; docs/mechanics.md ("Symmetric Nitsche") shows where they go wrong.
+        """
+        c = self.scene.contact
+        beta_t0 = self.beta0[1] if c.friction != "frictionless" else np.inf
+        poisson = _cell_values(self.fm.msh, self.scene.material.poisson)
+        rho = symmetric_nitsche_ratio(self.fm, self.scene.degree, young, poisson,
+                                      self.beta0[0], beta_t0, c.traction_side)
+        self.coercivity_ratio = rho
+        if rho >= 1.0:
+            msg = (f"contact.theta = 1 (symmetric Nitsche) is below its coercivity bound on this "
+                   f"mesh: the trace-inverse ratio is {rho:.3g} >= 1 for beta_n = "
+                   f"{self.beta0[0]:.3g} Pa, beta_t = {self.beta0[1]:.3g} Pa; the discrete "
+                   f"problem may have no solution or a wrong one. Multiply beta_n and beta_t by "
+                   f"at least {rho:.2g}, or use theta -1")
+            self.warnings.append(msg)
+            log.warning(msg)
+
+    def _pressure_fields(self, Q0: fem.FunctionSpace) -> None:
+        """Matrix and fracture pressures of a poromechanics scene, set by the coupling (Pa).
+
+        ``p_m`` (DG0 on the cells) exists only when the Biot coefficient is positive, ``p_f``
+        (DG0 on the fracture faces) only when there are fractures; both are None for
+        mechanics-only scenes (their fracture pressure, if any, is a scene expression).
+        """
+        self.p_m = self.p_f = None
+        self.biot = 0.0
+        if self.scene.physics != "poromechanics":
+            return
+        self.biot = self.scene.material.biot
+        if self.biot > 0:
+            self.p_m = fem.Function(Q0, name="p_m")
+        if self.has_fractures:
+            self.p_f = fem.Function(self._dg0(1), name="p_f")
+
+    def set_pressures(self, p_m: npt.NDArray[np.float64] | None,
+                      p_f: npt.NDArray[np.float64] | None) -> None:
+        """Set the pressures (Pa; collective).
+
+        ``p_m`` on the owned cells, ``p_f`` on the owned fracture faces in the order of
+        ``fm.fractures``.
+        """
+        if self.p_m is not None and p_m is not None:
+            n = len(p_m)
+            self.p_m.x.array[self._cell_dofs[:n]] = p_m
+            self.p_m.x.scatter_forward()
+        if self.p_f is not None and p_f is not None:
+            self.p_f.x.array[self._face_dofs] = p_f
+            self.p_f.x.scatter_forward()
+
+    @property
+    def _cell_dofs(self) -> npt.NDArray[np.int32]:
+        """DG0 dofs of the local cells (owned first) of the matrix pressure space."""
+        return self.p_m.function_space.dofmap.list[:, 0]
+
+    @property
+    def _face_dofs(self) -> npt.NDArray[np.int32]:
+        """DG0 dofs of the owned fracture faces (order of ``fm.fractures``) on the submesh."""
+        cells = self.emap.sub_topology_to_topology(self.fm.fractures.facets, inverse=True)
+        return self.p_f.function_space.dofmap.list[cells, 0]
 
     def _dg0(self, k: int) -> fem.FunctionSpace:
         shape = (k,) if k > 1 else ()
@@ -174,7 +266,9 @@ class MechanicsModel:
 
     def _kinematics(self) -> FractureKinematics:
         pf = None
-        if self.scene.fracture_pressure is not None and self.has_fractures:
+        if self.p_f is not None:
+            pf = self.p_f("+")
+        elif self.scene.fracture_pressure is not None and self.has_fractures:
             expr = self.scene.fracture_pressure
             if expr.is_uniform:
                 pf = fem.Constant(self.fm.msh, expr.value())
@@ -191,7 +285,8 @@ class MechanicsModel:
         young = self.young if isinstance(self.young, fem.Function) else self.young
         return FractureKinematics(
             n=n, young=young, poisson=self.poisson, side=self.scene.contact.traction_side,
-            fracture_pressure=pf, slip_reference=self.u_prev,
+            fracture_pressure=pf, slip_reference=self.u_prev, matrix_pressure=self.p_m,
+            biot=fem.Constant(self.fm.msh, self.biot),
         )
 
     def _dirichlet(self) -> list[fem.DirichletBC]:
@@ -227,6 +322,8 @@ class MechanicsModel:
         )
         ds = ufl.Measure("ds", domain=msh, subdomain_data=tags)
         F0 = elastic_form(self.u, v, self.young, self.poisson, dx)
+        if self.p_m is not None:
+            F0 += biot_stress_form(self.p_m, v, self.kinematics.biot, dx)
         f = scene.material.body_force
         if not all(e.is_constant and e.value() == 0.0 for e in f):
             F0 -= ufl.dot(self._vector_input(f), v) * dx
@@ -263,45 +360,132 @@ class MechanicsModel:
         jac = [[_derivative(Fi, uj) for uj in self.unknowns] for Fi in residuals]
         em = self.entity_maps or None
         self.F = [fem.form(Fi, entity_maps=em) for Fi in residuals]
+        self._div_form = self._divergence_form(dx) if self.scene.physics == "poromechanics" \
+            else None
         self.J = [[fem.form(a, entity_maps=em) if a is not None else None for a in row]
                   for row in jac]
         self._build_diagnostics()
 
     def _build_diagnostics(self) -> None:
-        """Face averages of jumps, tractions and contact indicators (see :data:`FACE_FIELDS`)."""
+        """Face means of :data:`FACE_FIELDS` and the pointwise active set (:meth:`active_set`).
+
+        Both use the quadrature of the contact terms, so that what is reported is what the
+        residual sees (for pointwise Nitsche the Gauss points are the contact points).
+        """
+        self.faces = self._code_form = None
         if not self.has_fractures:
-            self.faces = None
             return
         self.faces = fem.Function(self._dg0(len(FACE_FIELDS)), name="fracture")
         q = ufl.TestFunction(self.faces.function_space)
         fk, c = self.kinematics, self.params
         jn, jt = normal_jump(self.u, fk.n), slip(self.u, fk.n)
         if c.active:
-            contact, sliding, tn, tt = cforms.state_indicators(
-                fk, c, self.u, _plus(self.lam), _plus(self.avg)
-            )
-        elif fk.fracture_pressure is not None:
-            contact, sliding, tn, tt = 0.0, 0.0, 0.0 * jn, 0.0 * jn
+            st = cforms.state_indicators(fk, c, self.u, _plus(self.lam), _plus(self.avg))
+            values = (jn, jt, st.traction_n, st.traction_t, st.bound, st.contact, st.slip)
         else:
-            contact, sliding, tn, tt = 0.0, 0.0, 0.0 * jn, 0.0 * jn
-        values = (jn, jt, tn, tt, contact, sliding)
+            values = (jn, jt) + (0.0 * jn,) * (len(FACE_FIELDS) - 2)
+        dG = cforms.contact_measure(c, self.dG)
         h = ufl.FacetArea(self.fm.msh)("+")
-        form = sum(val * q("+")[i] / h for i, val in enumerate(values)) * self.dG
-        self._faces_form = fem.form(form, entity_maps=self.entity_maps or None)
+        em = self.entity_maps or None
+        form = sum(val * q("+")[i] / h for i, val in enumerate(values)) * dG
+        self._faces_form = fem.form(form, entity_maps=em)
+        if c.active:
+            self._build_active_set(dG)
+
+    def _build_active_set(self, dG) -> None:
+        """Collocation of the active-set code at the contact points of every face.
+
+        A Lagrange space of degree ``k`` on the fracture faces with its nodes at the ``k + 1``
+        Gauss points of the contact quadrature (``gl_warped``) is tested against the code: the
+        assembled moment of node ``j`` is ``w_j code(x_j)``. Facewise formulations have one
+        state per face (degree 0).
+        """
+        c = self.params
+        k = c.quadrature_degree // 2 if cforms.pointwise(c) else 0
+        element = basix.ufl.element("DG", "interval", k,
+                                    lagrange_variant=basix.LagrangeVariant.gl_warped)
+        self._points = fem.Function(fem.functionspace(self.submesh, element), name="active_set")
+        r = ufl.TestFunction(self._points.function_space)("+")
+        em = self.entity_maps or None
+        code = cforms.active_set_code(self.kinematics, c, self.u, _plus(self.lam), _plus(self.avg))
+        self._code_form = fem.form(code * r * dG, entity_maps=em)
+        self._point_weights = self._owned_moments(fem.form(r * dG, entity_maps=em))
+
+    def _owned_moments(self, form: fem.Form) -> npt.NDArray[np.float64]:
+        """Assembled moments against ``self._points``'s basis, owned entries (collective)."""
+        f = self._points
+        f.x.array[:] = 0.0
+        fem.assemble_vector(f.x.array, form)
+        f.x.scatter_reverse(dolfinx.la.InsertMode.add)
+        return f.x.array[: f.function_space.dofmap.index_map.size_local].copy()
+
+    def _divergence_form(self, dx):
+        """``∫_K div(u) dx`` per cell (DG0 test function) and the cell areas."""
+        Q0 = fem.functionspace(self.fm.msh, ("DG", 0))
+        q = ufl.TestFunction(Q0)
+        area = fem.assemble_vector(fem.form(q * dx)).array
+        self._cell_area = area
+        self._div_values = fem.Function(Q0)
+        return fem.form(ufl.div(self.u) * q * dx)
+
+    def cell_divergence(self) -> npt.NDArray[np.float64]:
+        """Cell means ``(div u)_K`` on the owned cells, in cell order (collective-free, local)."""
+        vals = fem.assemble_vector(self._div_form).array
+        n = self.fm.msh.topology.index_map(2).size_local
+        dofs = self._div_values.function_space.dofmap.list[:n, 0]
+        return vals[dofs] / self._cell_area[dofs]
 
     # -- time and outputs -------------------------------------------------------------------
+    #: Start each step from the last accepted increment extrapolated (see :meth:`set_time`).
+    extrapolate = True
+
     def set_time(self, t: float) -> None:
-        """Re-evaluate every time-dependent load, boundary value and parameter."""
+        """Re-evaluate every time-dependent input at ``t`` and predict the unknowns there.
+
+        When the unknowns are those of the last accepted step ``tₙ`` and the step before was
+        accepted too, they are extrapolated linearly (collective):
+        ``x ← xₙ + (t - tₙ)/(tₙ - tₙ₋₁) (xₙ - xₙ₋₁)`` for ``u``, ``λ`` and the face averages.
+        Points that slid in the last step then start the step sliding at the same rate, instead
+        of all sticking (zero slip increment) in the first Newton iteration. The unknowns at
+        construction count as the state at ``t = 0``.
+        """
         for upd in self._updaters:
             upd(t)
+        if not hasattr(self, "_history"):
+            self._history = [(0.0, [f.x.array.copy() for f in self.unknowns])]
+        self._t = t
+        if self.extrapolate and len(self._history) == 2 and t > self._history[1][0]:
+            (t0, x0), (t1, x1) = self._history
+            same = all(np.array_equal(f.x.array, a) for f, a in zip(self.unknowns, x1, strict=True))
+            if self.fm.comm.allreduce(same, op=MPI.LAND):
+                r = (t - t1) / (t1 - t0)
+                for f, a0, a1 in zip(self.unknowns, x0, x1, strict=True):
+                    f.x.array[:] = a1 + r * (a1 - a0)
 
     def accept_step(self) -> None:
-        """Store the converged displacement as the reference of the next slip increment."""
+        """Accept the solved state: slip reference of the next step and predictor point."""
         if self.u_prev is not None:
             self.u_prev.x.array[:] = self.u.x.array
+        t = getattr(self, "_t", 0.0)
+        history = [h for h in getattr(self, "_history", []) if h[0] < t][-1:]
+        self._history = history + [(t, [f.x.array.copy() for f in self.unknowns])]
+
+    def active_set(self) -> npt.NDArray[np.int8]:
+        """Active-set code at every contact point of the owned fracture faces (collective).
+
+        Codes are those of :func:`poromech.forms.contact.active_set_code` (the branches that
+        the Jacobian uses); points are the Gauss points of the contact quadrature for pointwise
+        ``nitsche`` and one per face otherwise. Empty without contact conditions. Newton counts
+        active-set changes with it.
+        """
+        if self._code_form is None:
+            return np.empty(0, dtype=np.int8)
+        codes = np.nan_to_num(self._owned_moments(self._code_form) / self._point_weights, nan=-1.0,
+                              posinf=-1.0, neginf=-1.0)
+        return np.rint(codes).astype(np.int8)
 
     def face_fields(self) -> npt.NDArray[np.float64]:
-        """Owned fracture face values of :data:`FACE_FIELDS`, ``(faces, 6)`` (collective)."""
+        """Owned fracture face values of :data:`FACE_FIELDS`, ``(faces, fields)`` (collective)."""
         if self.faces is None:
             return np.empty((0, len(FACE_FIELDS)))
         self.faces.x.array[:] = 0.0
@@ -314,11 +498,17 @@ class MechanicsModel:
 
     @staticmethod
     def states(values: npt.NDArray[np.float64]) -> npt.NDArray[np.int8]:
-        """Contact state code per face (0 open, 1 stick, 2 slip) from :meth:`face_fields`."""
-        contact, sliding = values[:, 4], values[:, 5]
-        state = np.where(contact > 0.5, 1, 0).astype(np.int8)
-        state[(contact > 0.5) & (sliding > 0.5 * contact)] = 2
-        return state
+        """Contact state per face from the written face means of :meth:`face_fields`.
+
+        0 ``open``: ``traction_n = 0`` (no compressive contact traction anywhere on the face);
+        1 ``stick``: ``traction_n < 0`` and ``|traction_t|`` below the friction bound;
+        2 ``slip``: ``traction_n < 0`` and ``|traction_t| >= (1 - SLIP_TOLERANCE) S`` with ``S``
+        the face mean of the bound (``F |traction_n|`` for Coulomb, ``s`` for Tresca, 0 without
+        friction: a closed frictionless face slips).
+        """
+        tn, tt, bound = values[:, 2], values[:, 3], values[:, 4]
+        sliding = np.abs(tt) >= (1.0 - SLIP_TOLERANCE) * bound
+        return np.where(tn < 0.0, np.where(sliding, 2, 1), 0).astype(np.int8)
 
     def dof_count(self) -> int:
         """Global number of unknowns of the nonlinear system."""
@@ -331,6 +521,16 @@ def _derivative(F, u):
     a = ufl.derivative(F, u, ufl.TrialFunction(u.function_space))
     a = ufl.algorithms.expand_derivatives(a)
     return None if a.empty() else a
+
+
+def _cell_values(msh: dolfinx.mesh.Mesh, expr: Expression, t: float = 0.0):
+    """``expr`` at the midpoints of the local cells (owned and ghost), as its DG0 field."""
+    imap = msh.topology.index_map(msh.topology.dim)
+    n = imap.size_local + imap.num_ghosts
+    if expr.is_uniform:
+        return np.full(n, expr.value(t))
+    x = dolfinx.mesh.compute_midpoints(msh, msh.topology.dim, np.arange(n, dtype=np.int32))
+    return np.broadcast_to(np.asarray(expr(x[:, 0], x[:, 1], t), dtype=np.float64), (n,)).copy()
 
 
 def _plus(f):

@@ -17,7 +17,7 @@ import numpy.typing as npt
 
 from poromech.geometry import PlaneGeometry, arc_length_positions
 
-__all__ = ["MeshArrays", "MeshSizes", "generate_mesh"]
+__all__ = ["MeshArrays", "MeshSizes", "generate_mesh", "gmsh_session"]
 
 
 @dataclass(frozen=True)
@@ -65,7 +65,7 @@ class MeshArrays:
 
 
 @contextlib.contextmanager
-def _gmsh_session():
+def gmsh_session():
     """Initialize gmsh quietly and finalize it whatever happens."""
     import gmsh
 
@@ -171,7 +171,7 @@ def generate_mesh(geo: PlaneGeometry, sizes: MeshSizes) -> MeshArrays:
     Returns:
         The mesh as arrays with fracture faces classified by fracture, segment and arc length.
     """
-    with _gmsh_session() as gmsh:
+    with gmsh_session() as gmsh:
         gmsh.model.add("poromech")
         bcurves, fcurves, owners = _build_model(gmsh, geo)
         _size_fields(gmsh, fcurves, sizes)
@@ -204,13 +204,32 @@ def generate_mesh(geo: PlaneGeometry, sizes: MeshSizes) -> MeshArrays:
     ff = np.concatenate(ffacets) if ffacets else empty2
     fid = np.concatenate(fid) if fid else np.empty(0, dtype=np.int32)
     fseg = np.concatenate(fseg) if fseg else np.empty(0, dtype=np.int32)
+    bf = np.concatenate(bfacets) if bfacets else empty2
+    be = np.concatenate(bedge) if bedge else np.empty(0, dtype=np.int32)
+    return mesh_arrays(geo, x, cells, (ff, fid, fseg), (bf, be))
+
+
+def mesh_arrays(geo: PlaneGeometry, x: npt.NDArray[np.float64], cells: npt.NDArray[np.int64],
+                fracture: tuple, boundary: tuple) -> MeshArrays:
+    """Assemble :class:`MeshArrays` from a triangle mesh and its classified facets.
+
+    Drops the nodes no triangle uses, orients the triangles counter-clockwise, computes the arc
+    length of every fracture face and numbers the fracture faces by (fracture, arc length).
+
+    Args:
+        geo: The plane geometry the facets refer to.
+        x: Node coordinates, ``(n, 2)``.
+        cells: Triangle nodes, ``(m, 3)``.
+        fracture: Fracture facets ``(k, 2)``, their fracture index and polyline segment.
+        boundary: Boundary facets ``(l, 2)`` and their domain polygon edge.
+    """
+    ff, fid, fseg = fracture
+    bf, be = boundary
     # Keep only the nodes used by triangles (gmsh may keep geometry points)
     used = np.unique(cells)
     renum = np.full(len(x), -1, dtype=np.int64)
     renum[used] = np.arange(len(used))
-    x, cells, ff = x[used], renum[cells], renum[ff]
-    bf = renum[np.concatenate(bfacets)] if bfacets else empty2
-    be = np.concatenate(bedge) if bedge else np.empty(0, dtype=np.int32)
+    x, cells, ff, bf = x[used], renum[cells], renum[ff], renum[bf]
     # Counter-clockwise triangles
     d1, d2 = x[cells[:, 1]] - x[cells[:, 0]], x[cells[:, 2]] - x[cells[:, 0]]
     cw = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0] < 0

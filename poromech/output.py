@@ -1,188 +1,175 @@
-"""Output of a mechanics run: XDMF/VTX for ParaView, ``fractures.csv``, ``summary.json``.
+"""Output meshes, the fracture table and ``summary.json`` (crash-safe, rank-independent).
 
-The displacement is written on a *duplicated-node* P1 mesh (the cracked topology), so a
-"Warp By Vector" in ParaView shows the fractures opening and sliding. Fracture fields are cell
-data on the fracture mesh. Everything is written as soon as a step converges, so a run that
-fails later keeps what it already wrote.
+* The displacement is written at its own nodes on the *duplicated-node* mesh (a P2 field on
+  each triangle's four sub-triangles), so "Warp By Vector" in ParaView shows the fractures
+  opening and sliding, and the P2 values are written exactly.
+* Fracture fields are cell data on the fracture faces, written as separate segments.
+* Matrix fields (flow) are cell data on the cells, in the input numbering of gmsh.
+* ``fractures.csv`` gets one block of rows per output time, appended in one write.
+* ``summary.json`` is rewritten through a temporary file and a rename after every step.
+
+All series use :class:`poromech.xdmf.XDMFSeries` (one HDF5 file per step and an atomically
+rewritten index), so a killed run leaves readable files for every completed step.
 """
 
 from __future__ import annotations
 
 import csv
+import io
 import json
+import os
 from pathlib import Path
 
 import dolfinx_solver  # noqa: F401
 
-import basix.ufl
 import dolfinx
 import numpy as np
 import numpy.typing as npt
-import ufl
 from dolfinx import fem
-from dolfinx.io import VTXWriter, XDMFFile
 from mpi4py import MPI
 
-from poromech.mechanics import FACE_FIELDS, STATE_NAMES, MechanicsModel
+from poromech.errors import OutputError
 from poromech.mesh import FracturedMesh
+from poromech.xdmf import MeshPiece, atomic_write_text, root_write
 
-__all__ = ["CSV_COLUMNS", "MechanicsOutput", "duplicated_node_mesh", "write_summary"]
+__all__ = [
+    "CSV_COLUMNS",
+    "FractureTable",
+    "displacement_mesh",
+    "fracture_mesh",
+    "matrix_mesh",
+    "owned_blocks",
+    "write_summary",
+]
 
+#: The columns every ``fractures.csv`` starts with (a coupled run adds ``p_f`` and ``aperture``).
 CSV_COLUMNS = ("time", "fracture", "s", "x", "y", "jump_n", "jump_t", "traction_n", "traction_t",
                "state")
 
-
-def _keep_local_partitioner():
-    """Partitioner that leaves every cell on the rank that passes it (no ghosts)."""
-
-    def part(comm, nparts, graph, ghosting):
-        n = len(graph.offsets) - 1
-        return dolfinx.cpp.graph.AdjacencyList_int32(
-            np.full(n, comm.rank, dtype=np.int32), np.arange(n + 1, dtype=np.int32)
-        )
-
-    return dolfinx.mesh.create_cell_partitioner(part, dolfinx.mesh.GhostMode.none, 2)
+#: The P2 triangle (vertices 0-2, edge midpoints 3 = (1,2), 4 = (0,2), 5 = (0,1)) as four
+#: P1 sub-triangles.
+_P2_SPLIT = np.array([[0, 5, 4], [5, 1, 3], [4, 3, 2], [5, 3, 4]])
 
 
-def duplicated_node_mesh(fm: FracturedMesh) -> tuple[dolfinx.mesh.Mesh, npt.NDArray[np.int32]]:
-    """P1 mesh of the cracked topology, with the same owned cells per rank (collective).
+def displacement_mesh(V: fem.FunctionSpace) -> MeshPiece:
+    """The nodes of a (cracked) vector Lagrange space as an output mesh (local data).
 
-    Returns:
-        The mesh and, for each of its local cells, the local cell of ``fm.msh`` it copies.
+    Points are the owned dof blocks (global block numbers); cells are the owned cells, split
+    into four sub-triangles for P2.
     """
-    comm, msh = fm.comm, fm.msh
-    nloc = msh.topology.index_map(2).size_local
-    cells = np.ascontiguousarray(fm.cracked_cells[:nloc])
-    x = msh.geometry.x[msh.geometry.dofmaps[0][:nloc]][:, :, :2].reshape(-1, 2)
-    num = comm.allreduce(int(cells.max()) + 1 if len(cells) else 0, op=MPI.MAX)
-    gathered = comm.gather((cells.ravel(), x), root=0)
-    coords = np.zeros((num, 2)) if comm.rank == 0 else np.empty((0, 2))
-    if comm.rank == 0:
-        for ids, xs in gathered:
-            coords[ids] = xs
-    element = basix.ufl.element("Lagrange", "triangle", 1, shape=(2,))
-    out = dolfinx.mesh.create_mesh(comm, cells, ufl.Mesh(element), coords,
-                                   _keep_local_partitioner())
-    offset = comm.exscan(nloc) or 0
-    nout = out.topology.index_map(2).size_local
-    source = np.asarray(out.topology.original_cell_index[:nout], dtype=np.int64) - offset
-    return out, source.astype(np.int32)
+    msh = V.mesh
+    imap = V.dofmap.index_map
+    nown = imap.size_local
+    blocks = np.arange(nown, dtype=np.int32)
+    ncells = msh.topology.index_map(2).size_local
+    cell_blocks = imap.local_to_global(V.dofmap.list[:ncells].ravel()).reshape(ncells, -1)
+    if cell_blocks.shape[1] == 6:
+        cells = cell_blocks[:, _P2_SPLIT].reshape(-1, 3)
+    else:
+        cells = cell_blocks
+    first_cell = msh.comm.exscan(len(cells)) or 0
+    coords = V.tabulate_dof_coordinates()[:nown, :2]
+    return MeshPiece(imap.local_to_global(blocks), coords,
+                     first_cell + np.arange(len(cells), dtype=np.int64), cells.astype(np.int64))
 
 
-class _DisplacementTransfer:
-    """Copies vertex values of the displacement onto the duplicated-node P1 output mesh."""
-
-    def __init__(self, fm: FracturedMesh, u: fem.Function):
-        self.mesh, source = duplicated_node_mesh(fm)
-        self.W = fem.functionspace(self.mesh, ("Lagrange", 1, (2,)))
-        self.w = fem.Function(self.W, name="u")
-        geo = self.mesh.geometry
-        out_ids = geo.input_global_indices[geo.dofmaps[0][: len(source)]]
-        in_ids = fm.cracked_cells[source]
-        # position in the fm.msh cell of each output vertex
-        pos = np.argmax(out_ids[:, :, None] == in_ids[:, None, :], axis=2)
-        vdofs = u.function_space.dofmap.list[source]  # vertex dofs come first in Lagrange
-        self.u_dofs = np.take_along_axis(vdofs, pos, axis=1).ravel()
-        self.w_dofs = self.W.dofmap.list[: len(source), :3].ravel()
-        self.u = u
-
-    def __call__(self) -> fem.Function:
-        src = self.u.x.array.reshape(-1, 2)
-        self.w.x.array.reshape(-1, 2)[self.w_dofs] = src[self.u_dofs]
-        self.w.x.scatter_forward()
-        return self.w
+def owned_blocks(u: fem.Function) -> npt.NDArray[np.float64]:
+    """Values of the owned dof blocks of a vector function, ``(n, bs)``."""
+    bs = u.function_space.dofmap.index_map_bs
+    n = u.function_space.dofmap.index_map.size_local
+    return u.x.array.reshape(-1, bs)[:n]
 
 
-class MechanicsOutput:
-    """Writers of one mechanics run (collective constructor and methods).
+def fracture_mesh(fm: FracturedMesh) -> MeshPiece:
+    """The owned fracture faces as separate segments (points ``2i``, ``2i+1`` for face ``i``).
+
+    The first point of a face is the one nearer to the start of its fracture polyline; cell ids
+    are the global fracture face numbers (sorted by fracture, then arc length).
+    """
+    faces = fm.fractures
+    nodes = dolfinx.mesh.entities_to_geometry(fm.msh, 1, faces.facets)
+    x = fm.msh.geometry.x[nodes][:, :, :2] if len(faces.facets) else np.empty((0, 2, 2))
+    tangent = np.column_stack([faces.normal[:, 1], -faces.normal[:, 0]])
+    swap = np.einsum("ni,ni->n", x[:, 1] - x[:, 0], tangent) < 0
+    x[swap] = x[swap][:, ::-1]
+    ids = faces.index.astype(np.int64)
+    points = np.column_stack([2 * ids, 2 * ids + 1])
+    return MeshPiece(points.ravel(), x.reshape(-1, 2), ids, points)
+
+
+def matrix_mesh(fm: FracturedMesh) -> MeshPiece:
+    """The owned cells of the connected mesh in gmsh's input numbering (cells and nodes)."""
+    msh = fm.msh
+    n = msh.topology.index_map(2).size_local
+    geo = msh.geometry
+    nodes = geo.dofmaps[0][:n]
+    inputs = np.asarray(geo.input_global_indices, dtype=np.int64)
+    used = np.unique(nodes)
+    cells = np.asarray(msh.topology.original_cell_index, dtype=np.int64)[:n]
+    return MeshPiece(inputs[used], geo.x[used, :2], cells, inputs[nodes])
+
+
+class FractureTable:
+    """``fractures.csv``: one row per fracture face and output time (collective ``write``).
 
     Args:
-        model: The mechanics model.
-        outdir: Output directory (created by the caller).
-        xdmf: Write XDMF files.
-        vtx: Write a VTX file of a P2 displacement.
-        csv_file: Write ``fractures.csv``.
+        fm: The fractured mesh.
+        path: The CSV file.
+        columns: Value columns after ``time, fracture, s, x, y``; a column ``state`` holds
+            the codes 0, 1, 2 and is written as a word: open, stick or slip.
+        resume_until: When continuing a run, keep the rows up to this time; None starts anew.
     """
 
-    def __init__(self, model: MechanicsModel, outdir: Path, xdmf: bool = True, vtx: bool = True,
-                 csv_file: bool = True):
-        self.model, self.outdir, fm = model, Path(outdir), model.fm
-        self.comm = fm.comm
-        self._files = []
-        self.transfer = None
-        if xdmf:
-            self.transfer = _DisplacementTransfer(fm, model.u)
-            self.u_file = XDMFFile(self.comm, str(self.outdir / "displacement.xdmf"), "w")
-            self.u_file.write_mesh(self.transfer.mesh)
-            self._files.append(self.u_file)
-        self.vtx = None
-        if vtx and model.scene.degree > 1:
-            self.vtx = VTXWriter(self.comm, str(self.outdir / "displacement_p2.bp"), [model.u],
-                                 engine="BP4")
-            self._files.append(self.vtx)
-        self.fracture_file = None
-        if xdmf and model.faces is not None:
-            Q = fem.functionspace(model.submesh, ("DG", 0))
-            self.face_functions = {name: fem.Function(Q, name=name)
-                                   for name in (*FACE_FIELDS[:4], "state")}
-            self.fracture_file = XDMFFile(self.comm, str(self.outdir / "fractures.xdmf"), "w")
-            self.fracture_file.write_mesh(model.submesh)
-            self._files.append(self.fracture_file)
-            self._sub_cells = model.emap.sub_topology_to_topology(fm.fractures.facets, inverse=True)
-        self.csv_path = self.outdir / "fractures.csv" if csv_file and model.faces is not None \
-            else None
-        if self.csv_path is not None and self.comm.rank == 0:
-            with open(self.csv_path, "w", newline="") as fh:
-                csv.writer(fh).writerow(CSV_COLUMNS)
+    STATE_WORDS = ("open", "stick", "slip")
 
-    def write(self, t: float, values: npt.NDArray[np.float64],
-              states: npt.NDArray[np.int8]) -> None:
-        """Write all outputs at time ``t`` from the owned face values and states."""
-        if self.transfer is not None:
-            self.u_file.write_function(self.transfer(), t)
-        if self.vtx is not None:
-            self.vtx.write(t)
-        if self.fracture_file is not None:
-            for k, name in enumerate(FACE_FIELDS[:4]):
-                f = self.face_functions[name]
-                f.x.array[self._sub_cells] = values[:, k]
-                f.x.scatter_forward()
-                self.fracture_file.write_function(f, t)
-            f = self.face_functions["state"]
-            f.x.array[self._sub_cells] = states
-            f.x.scatter_forward()
-            self.fracture_file.write_function(f, t)
-        if self.csv_path is not None:
-            self._append_csv(t, values, states)
+    def __init__(self, fm: FracturedMesh, path: Path, columns: tuple[str, ...],
+                 resume_until: float | None = None):
+        self.fm, self.path, self.comm = fm, Path(path), fm.comm
+        self.columns = ("time", "fracture", "s", "x", "y", *columns)
+        root_write(self.comm, self._start, resume_until)
 
-    def _append_csv(self, t, values, states) -> None:
-        faces = self.model.fm.fractures
-        names = self.model.fm.geometry.fracture_names
-        rows = np.column_stack([faces.index, faces.fracture, faces.s, faces.midpoint,
-                                values[:, :4], states])
-        gathered = self.comm.gather(rows, root=0)
-        if self.comm.rank != 0:
-            return
+    def _start(self, resume_until: float | None) -> None:
+        """The header, and the rows of an earlier run up to ``resume_until`` (rank 0)."""
+        keep = ""
+        if resume_until is not None and self.path.exists():
+            keep = "".join(line for line in self.path.read_text().splitlines(True)[1:]
+                           if float(line.split(",", 1)[0]) <= resume_until * (1 + 1e-12))
+        atomic_write_text(self.path, ",".join(self.columns) + "\n" + keep)
+
+    def write(self, t: float, values: dict[str, npt.NDArray]) -> None:
+        """Append the rows of time ``t`` from owned face values (one array per column)."""
+        faces = self.fm.fractures
+        data = np.column_stack([faces.index, faces.fracture, faces.s, faces.midpoint,
+                                *[np.asarray(values[c], dtype=np.float64)
+                                  for c in self.columns[5:]]])
+        gathered = self.comm.gather(data, root=0)
+        root_write(self.comm, self._append, t, gathered)
+
+    def _append(self, t: float, gathered: list) -> None:
+        """Append the rows of one time in one write (rank 0)."""
         rows = np.concatenate(gathered)
         rows = rows[np.argsort(rows[:, 0])]
-        with open(self.csv_path, "a", newline="") as fh:
-            w = csv.writer(fh)
-            for r in rows:
-                w.writerow([f"{t:.9g}", names[int(r[1])], f"{r[2]:.9g}", f"{r[3]:.9g}",
-                            f"{r[4]:.9g}", *(f"{v:.9e}" for v in r[5:9]),
-                            STATE_NAMES[int(r[9])]])
-
-    def close(self) -> None:
-        """Close the files."""
-        for f in self._files:
-            f.close()
-        self._files = []
+        names = self.fm.geometry.fracture_names
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        state = [i for i, c in enumerate(self.columns) if c == "state"]
+        for r in rows:
+            cells = [f"{t:.9g}", names[int(r[1])], f"{r[2]:.9g}", f"{r[3]:.9g}", f"{r[4]:.9g}",
+                     *(f"{v:.9e}" for v in r[5:])]
+            for i in state:
+                cells[i] = self.STATE_WORDS[int(r[i])]
+            w.writerow(cells)
+        try:
+            with open(self.path, "a") as fh:
+                fh.write(buf.getvalue())
+        except OSError as err:
+            raise OutputError(f"could not write {self.path}: {os.strerror(err.errno)}") from None
 
 
 def write_summary(comm: MPI.Comm, outdir: Path, summary: dict) -> None:
-    """Write ``summary.json`` on rank 0."""
-    if comm.rank == 0:
-        (Path(outdir) / "summary.json").write_text(json.dumps(summary, indent=2, default=_json))
+    """Write ``summary.json`` atomically on rank 0 (collective: an error is raised everywhere)."""
+    text = json.dumps(summary, indent=2, default=_json) if comm.rank == 0 else ""
+    root_write(comm, atomic_write_text, Path(outdir) / "summary.json", text)
 
 
 def _json(obj):

@@ -1,37 +1,47 @@
-"""Run a scene: mesh → spaces/forms → solves over time → output. Dispatches on ``physics``."""
+"""Run a scene: mesh → models → (coupling) → time loop → output. Dispatches on ``physics``."""
 
 from __future__ import annotations
 
 import logging
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import dolfinx_solver  # noqa: F401
 
 import numpy as np
+import yaml
 from mpi4py import MPI
 
 import poromech
+from poromech.checkpoint import load_checkpoint, save_checkpoint
 from poromech.config import plane_geometry
 from poromech.errors import SolverError
+from poromech.fieldcheck import validate_fields
 from poromech.mesh import FracturedMesh, create_fractured_mesh
 from poromech.meshing import MeshSizes, generate_mesh
 from poromech.output import write_summary
+from poromech.parallel import agree
 from poromech.scene import Scene
+from poromech.simulation import MechanicsSimulation, formulation_options
+from poromech.stepping import Interrupted, run_steps, step_times, stop_signals
 from poromech.timing import Timer
 
 __all__ = [
     "MechanicsSimulation",
-    "formulation_options",
     "RunContext",
+    "SCENE_FILE",
     "build_mesh",
+    "formulation_options",
+    "make_simulation",
     "mesh_sizes",
     "run_scene",
     "time_points",
 ]
 
 log = logging.getLogger("poromech")
+
+#: The validated scene (after overrides) is stored next to the outputs, for ``--restart``.
+SCENE_FILE = "poromech_scene.yaml"
 
 
 @dataclass
@@ -64,17 +74,29 @@ def mesh_sizes(scene: Scene) -> MeshSizes:
 
 
 def build_mesh(scene: Scene, comm: MPI.Comm, owner=None) -> FracturedMesh:
-    """Generate (rank 0) and distribute the fractured mesh of a scene (collective)."""
+    """Generate or read (rank 0) and distribute the fractured mesh of a scene (collective).
+
+    A failure of gmsh or of the mesh file on rank 0 is raised on every rank.
+    """
     geo = plane_geometry(scene)
-    arrays = generate_mesh(geo, mesh_sizes(scene)) if comm.rank == 0 else None
+    arrays, err = None, None
+    if comm.rank == 0:
+        try:
+            if scene.geometry.mesh is not None:
+                from poromech.mesh_import import mesh_file_arrays
+
+                arrays = mesh_file_arrays(scene.geometry.mesh, geo, scene.mesh.refinement)
+            else:
+                arrays = generate_mesh(geo, mesh_sizes(scene))
+        except Exception as e:  # noqa: BLE001  (re-raised on every rank by agree)
+            err = e
+    agree(comm, err)
     return create_fractured_mesh(comm, geo, arrays, owner=owner)
 
 
 def time_points(scene: Scene) -> list[float]:
-    """Times of the solves: ``[0]`` for a static scene, else the uniform step ends."""
-    if scene.time is None:
-        return [0.0]
-    return list(np.linspace(0.0, scene.time.final, scene.time.steps + 1)[1:])
+    """Times of the solves: ``[0]`` for a static scene, else the step end times."""
+    return step_times(scene)
 
 
 def _mesh_summary(fm: FracturedMesh) -> dict:
@@ -86,18 +108,43 @@ def _mesh_summary(fm: FracturedMesh) -> dict:
     }
 
 
-def run_scene(scene: Scene, outdir: Path, comm: MPI.Comm = MPI.COMM_WORLD) -> dict:
-    """Run a scene and write its outputs to ``outdir`` (collective).
+def make_simulation(scene: Scene, fm: FracturedMesh, timer: Timer):
+    """The physics object of a scene (collective)."""
+    if scene.physics == "flow":
+        from poromech.flow.driver import FlowSimulation
+
+        return FlowSimulation(scene, fm, timer)
+    if scene.physics == "poromechanics":
+        from poromech.coupling import PoromechanicsSimulation
+
+        return PoromechanicsSimulation(scene, fm, timer)
+    return MechanicsSimulation(scene, fm, timer)
+
+
+def run_scene(scene: Scene, outdir: Path, comm: MPI.Comm = MPI.COMM_WORLD, *,
+              raw: dict | None = None, restart: bool = False) -> dict:
+    """Run a scene and write its outputs to ``outdir`` step by step (collective).
+
+    Args:
+        scene: The validated scene.
+        outdir: Output directory (created if needed).
+        comm: Communicator.
+        raw: The scene mapping it was built from; stored as ``scene.yaml`` for ``--restart``.
+        restart: Continue the run in ``outdir`` from its checkpoint.
 
     Returns:
-        The summary (also written to ``outdir/summary.json``, even when a solve fails).
+        The summary (also in ``outdir/summary.json``, rewritten after every step, and written
+        with the failure status when a step fails).
 
     Raises:
-        SolverError: A solve did not converge (outputs of earlier steps are kept).
+        SolverError: A step did not converge (outputs of earlier steps are kept).
+        Interrupted: Stopped by SIGINT/SIGTERM at a step boundary.
     """
     outdir = Path(outdir)
     if comm.rank == 0:
         outdir.mkdir(parents=True, exist_ok=True)
+        if raw is not None and not restart:
+            (outdir / SCENE_FILE).write_text(yaml.safe_dump(raw, sort_keys=False))
     comm.barrier()
     timer = Timer()
     summary: dict = {
@@ -105,150 +152,88 @@ def run_scene(scene: Scene, outdir: Path, comm: MPI.Comm = MPI.COMM_WORLD) -> di
         "physics": scene.physics,
         "poromech_version": poromech.__version__,
         "mpi_ranks": comm.size,
+        "status": "running",
     }
+    sim = None
     try:
         with timer.phase("mesh"):
             fm = build_mesh(scene, comm)
+        validate_fields(scene, fm)  # every expression where it is evaluated, every step time
         summary["mesh"] = _mesh_summary(fm)
         log.info("mesh: %(cells)d cells, %(fracture_faces)d fracture faces", summary["mesh"])
-        ctx = RunContext(scene, fm, outdir, timer, summary)
-        if scene.physics == "flow":
-            from poromech.flow.driver import run_flow
-
-            run_flow(ctx)
-        else:
-            _run_mechanics(ctx)
+        sim = make_simulation(scene, fm, timer)
+        summary.update(sim.describe())
+        _loop(sim, RunContext(scene, fm, outdir, timer, summary), restart)
         summary["status"] = "converged"
     except SolverError as err:
         summary["status"] = f"failed: {err}"
         raise
+    except Interrupted as err:
+        summary["status"] = f"interrupted: {err}"
+        raise
+    except BaseException as err:
+        summary["status"] = f"error: {type(err).__name__}: {err}"
+        raise
     finally:
+        if sim is not None:
+            sim.finish(summary)
+            sim.close()
         summary["wall_time"] = timer.report(comm)
         write_summary(comm, outdir, summary)
     return summary
 
 
-def formulation_options(formulation: str) -> dict:
-    """PETSc defaults that depend on the formulation.
+def _loop(sim, ctx: RunContext, restart: bool) -> None:
+    """Initial state (or checkpoint), writers, then the time steps with per-step bookkeeping."""
+    scene, comm, summary, outdir = ctx.scene, ctx.comm, ctx.summary, ctx.outdir
+    key = "flow" if scene.physics == "flow" else None
+    records: list[dict] = sim.records
+    (summary.setdefault("flow", {}) if key else summary)["solves"] = records
+    start, resume = 0, None
+    if restart:
+        meta, arrays = load_checkpoint(comm, outdir)
+        _check_restart(meta, summary)
+        start, resume = meta["steps_done"], meta["time"]
+        sim.restore(arrays, resume)
+        records.extend(meta["records"])
+        if meta.get("initial"):
+            summary["initial"] = meta["initial"]
+        summary["restarted_from"] = {"step": start, "time": resume}
+        log.info("restart after step %d (t = %g s)", start, resume)
+    else:
+        initial = sim.initialize()
+        if initial is not None:
+            summary["initial"] = initial
+    sim.open_output(outdir, resume_until=resume)
+    checkpoints = scene.time is not None and scene.output.checkpoint
 
-    The mixed method with P1 displacements is not inf-sup stable: when every face of a fracture
-    sticks there are more facewise constraints than jump dofs and the Jacobian is singular (the
-    displacement is unique, the multipliers are not). MUMPS null-pivot detection
-    (ICNTL(24) = 1) then returns one of the solutions instead of failing.
-    """
-    return {"mat_mumps_icntl_24": 1} if formulation == "mixed" else {}
+    def on_step(k: int, t: float) -> None:
+        summary["completed_steps"] = k + 1
+        summary["wall_time"] = ctx.timer.report(comm)
+        write_summary(comm, outdir, summary)
+        if checkpoints:
+            with ctx.timer.phase("checkpoint"):
+                meta = {"steps_done": k + 1, "time": t, "records": records,
+                        "initial": summary.get("initial"),
+                        "mesh": summary["mesh"], "dofs": summary.get("dofs"),
+                        "scene": scene.name}
+                save_checkpoint(comm, outdir, meta, sim.state())
 
-
-class MechanicsSimulation:
-    """The contact problem of a scene and its time loop (collective methods).
-
-    Attributes:
-        model: The :class:`~poromech.mechanics.MechanicsModel` (holds the current unknowns).
-        solver: The :class:`~poromech.newton.SemiSmoothNewton`.
-        records: One JSON-ready record per attempted step, appended as the run goes.
-    """
-
-    def __init__(self, scene: Scene, fm: FracturedMesh, timer: Timer):
-        from poromech.mechanics import MechanicsModel
-        from poromech.newton import SemiSmoothNewton
-
-        self.scene, self.timer = scene, timer
-        singular = scene.contact.formulation == "mixed" and scene.degree == 1
-        if singular:
-            log.warning("mixed with P1 displacements is not inf-sup stable: multipliers are not "
-                        "unique and Newton may not converge; prefer degree 2 or stabilized_mixed")
-        with timer.phase("setup"):
-            self.model = model = MechanicsModel(fm, scene)
-            states = (lambda: model.states(model.face_fields())) if model.faces else None
-            self.solver = SemiSmoothNewton(
-                model.F, model.J, model.unknowns, model.bcs, prefix="mech_",
-                options={**formulation_options(model.params.formulation), **scene.solver.petsc},
-                line_search=scene.solver.line_search,
-                reuse_jacobian=scene.solver.reuse_jacobian,
-                # a stale factorization of a singular Jacobian is no preconditioner
-                stale_factorization=scene.solver.stale_factorization and not singular,
-                states=states,
-            )
-        self.records: list[dict] = []
-
-    def describe(self) -> dict:
-        """Formulation, degree and size, for the summary."""
-        return {
-            "formulation": self.model.params.formulation,
-            "friction": self.scene.contact.friction,
-            "theta": self.scene.contact.theta,
-            "degree": self.scene.degree,
-            "dofs": self.model.dof_count(),
-        }
-
-    def run(self, on_step=None) -> list[dict]:
-        """Solve every time step; call ``on_step(k, t, model)`` after each converged one.
-
-        Raises:
-            SolverError: A step did not converge (its record is the last of ``records``).
-        """
-        times = time_points(self.scene)
-        for k, t in enumerate(times):
-            t0 = time.perf_counter()
-            self.model.set_time(t)
-            rec = self.solver.solve()
-            self.timer.add("assembly", rec.time_assembly)
-            self.timer.add("linear_solve", rec.time_linear)
-            wall = self.model.fm.comm.allreduce(time.perf_counter() - t0, op=MPI.MAX)
-            entry = {"step": k + 1, "time": t, "wall_time": wall, **rec.as_dict()}
-            self.records.append(entry)
-            _progress(k, len(times), t, rec, wall)
-            if not rec.converged:
-                raise SolverError(
-                    f"Newton did not converge at t = {t:g} s (step {k + 1}): {rec.reason} after "
-                    f"{rec.iterations} iterations; residual history "
-                    + ", ".join(f"{r:.3e}" for r in rec.residuals),
-                    rec.reason, rec.residuals, entry,
-                )
-            self.model.accept_step()
-            if on_step is not None:
-                on_step(k, t, self.model)
-        return self.records
-
-    def close(self) -> None:
-        """Free the PETSc objects."""
-        self.solver.destroy()
+    write_summary(comm, outdir, summary)
+    with stop_signals() as flag:
+        run_steps(sim, scene, comm, records, on_step, start=start,
+                  write_initial=not restart and scene.time is not None
+                  and getattr(sim, "has_initial_output", False), stop=flag)
 
 
-def _run_mechanics(ctx: RunContext) -> None:
-    from poromech.output import MechanicsOutput
-
-    scene, timer, summary = ctx.scene, ctx.timer, ctx.summary
-    sim = MechanicsSimulation(scene, ctx.fm, timer)
-    summary.update(sim.describe())
-    summary["solves"] = sim.records
-    log.info("%s, P%d, %d dofs on %d rank(s)", summary["formulation"], scene.degree,
-             summary["dofs"], ctx.comm.size)
-    nsteps = len(time_points(scene))
-    with timer.phase("output"):
-        out = MechanicsOutput(sim.model, ctx.outdir, xdmf=scene.output.xdmf, vtx=scene.output.vtx,
-                              csv_file=scene.output.fractures_csv)
-
-    def write(k, t, model):
-        if (k + 1) % scene.output.every == 0 or k + 1 == nsteps:
-            with timer.phase("output"):
-                values = model.face_fields()
-                out.write(t, values, model.states(values))
-
-    try:
-        sim.run(on_step=write)
-    finally:
-        with timer.phase("output"):
-            out.close()
-        sim.close()
+def _check_restart(meta: dict, summary: dict) -> None:
+    """The checkpoint must come from the same scene on the same mesh."""
+    if meta["mesh"] != summary["mesh"] or meta.get("dofs") != summary.get("dofs"):
+        raise ValueError(f"the checkpoint was written for another mesh ({meta['mesh']}, "
+                         f"{meta.get('dofs')} dofs) than this one ({summary['mesh']}, "
+                         f"{summary.get('dofs')} dofs)")
 
 
-def _progress(k: int, n: int, t: float, rec, seconds: float) -> None:
-    changes = ",".join(str(c) for c in rec.active_set_changes) or "-"
-    first = rec.residuals[0] if rec.residuals else float("nan")
-    last = rec.residuals[-1] if rec.residuals else float("nan")
-    log.info(
-        "step %d/%d t=%g s: %s in %d Newton it (|F| %.2e -> %.2e), active-set changes %s, "
-        "%d factorizations, %.2f s",
-        k + 1, n, t, rec.reason, rec.iterations, first, last, changes, rec.factorizations, seconds,
-    )
+def final_time(scene: Scene) -> float:
+    """Time of the last step (0 for a static scene)."""
+    return float(np.max(step_times(scene)))

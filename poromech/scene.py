@@ -9,13 +9,14 @@ scene ``parameters``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import ClassVar, Literal
 
 from poromech.expressions import Expression
 
 __all__ = [
     "BoundaryCondition",
     "Contact",
+    "Coupling",
     "Domain",
     "FlowBoundaryCondition",
     "Flow",
@@ -23,6 +24,7 @@ __all__ = [
     "FractureSpec",
     "Geometry",
     "Material",
+    "MeshFile",
     "MeshSpec",
     "Output",
     "Probe",
@@ -69,11 +71,59 @@ class FractureSpec:
 
 
 @dataclass(frozen=True)
-class Geometry:
-    """Domain and fracture network."""
+class MeshFile:
+    """A mesh from a file, with named groups of line elements as fractures and boundaries.
 
-    domain: Domain = field(metadata=doc("the matrix domain"))
+    A gmsh .geo (meshed by gmsh, with its own sizes) or .msh file, or any mesh meshio reads
+    (groups: its cell sets or gmsh physical names). The mesh must be 3-node triangles in z = 0,
+    one piece with no holes. The scene's ``mesh`` key then only gives ``refinement``
+    (docs/meshes.md).
+    """
+
+    file: str = field(
+        metadata=doc("the file: a path relative to the scene file's folder, or the name of a "
+                     "shipped file (six_fractures.msh)")
+    )
+    fractures: tuple[str, ...] = field(
+        default=(),
+        metadata=doc("groups that are fractures: one chain of triangle edges each, named as the "
+                     "group; its polyline runs the way its line elements do in the file"),
+    )
+    boundaries: dict[str, tuple[str, ...]] | None = field(
+        default=None,
+        metadata=doc("boundary names, {name: [groups]}, covering the whole boundary (default: "
+                     "every group on the boundary, under its own name)"),
+    )
+    starts: dict[str, tuple[float, float]] = field(
+        default_factory=dict,
+        metadata=doc("start point of fractures, {fracture: [x, y]} (one of its ends): fixes n⁺ "
+                     "instead of the direction of its line elements", "m"),
+    )
+
+
+@dataclass(frozen=True)
+class Geometry:
+    """Domain and fracture network: given in the scene, from a CSV file, or a mesh file.
+
+    With ``fracture_file`` or ``mesh``, the loader fills ``domain`` and ``fractures`` from the
+    file (a mesh file's polygon has one edge per straight run of same-named boundary edges).
+    """
+
+    domain: Domain | None = field(
+        default=None, metadata=doc("the matrix domain (required unless mesh is given)")
+    )
     fractures: tuple[FractureSpec, ...] = field(default=(), metadata=doc("the fracture network"))
+    fracture_file: str | None = field(
+        default=None,
+        metadata=doc("CSV file of fractures instead of fractures: header fracture,x0,y0,x1,y1 "
+                     "(a row per segment) or fracture,x,y (a row per point); path as for "
+                     "mesh.file (docs/meshes.md)"),
+    )
+    mesh: MeshFile | None = field(
+        default=None,
+        metadata=doc("a mesh file instead of domain, fractures and gmsh generation; the scene's "
+                     "mesh key then only gives refinement"),
+    )
 
 
 @dataclass(frozen=True)
@@ -107,6 +157,11 @@ class Material:
     body_force: tuple[Expr, Expr] = field(
         default=(Expression(0.0), Expression(0.0)), metadata=doc("body force f", "N/m³")
     )
+    biot: float = field(
+        default=1.0,
+        metadata=doc("Biot coefficient b: total stress σ(u) - b p_m I (poromechanics)", "", min=0,
+                     max=1),
+    )
 
 
 @dataclass(frozen=True)
@@ -128,8 +183,20 @@ class Contact:
         default=-1.0,
         metadata=doc("Nitsche symmetry parameter θ: -1, 0 or 1", "", choices=(-1, 0, 1)),
     )
-    beta_n: float = field(default=1e12, metadata=doc("β_n⁰; β_n = β_n⁰/h_σ", "Pa", gt=0))
-    beta_t: float = field(default=4e10, metadata=doc("β_τ⁰; β_τ = β_τ⁰/h_σ", "Pa", gt=0))
+    beta_n: float | None = field(
+        default=None,
+        metadata=doc("β_n⁰; β_n = β_n⁰/h_σ (default 250 E_max, E_max the largest Young's "
+                     "modulus of the scene: the paper's 1000 GPa for E = 4 GPa)", "Pa", gt=0),
+    )
+    beta_t: float | None = field(
+        default=None,
+        metadata=doc("β_τ⁰; β_τ = β_τ⁰/h_σ (default 10 E_max: the paper's 40 GPa for "
+                     "E = 4 GPa); with theta 1 both must exceed a mesh-dependent bound "
+                     "(docs/mechanics.md)", "Pa", gt=0),
+    )
+    #: Default ``β_n⁰ / E_max`` and ``β_τ⁰ / E_max`` (Beaude et al. 2023, §3).
+    BETA_N_PER_E: ClassVar[float] = 250.0
+    BETA_T_PER_E: ClassVar[float] = 10.0
     traction_side: Literal["plus", "mean"] = field(
         default="plus",
         metadata=doc("side whose stress defines T(u): plus (as in the paper) or mean of both"),
@@ -151,10 +218,28 @@ class BoundaryCondition:
 
 @dataclass(frozen=True)
 class TimeSpec:
-    """Uniform time stepping (quasi-static); friction then acts on slip increments."""
+    """Time stepping (implicit Euler, quasi-static): uniform steps or listed step end times.
 
-    final: float = field(metadata=doc("final time T", "s", gt=0))
-    steps: int = field(metadata=doc("number of uniform steps", "", min=1))
+    Friction then acts on slip increments. A step whose solve fails is retried as halves,
+    quarters, ... up to ``max_cuts`` times before the run stops (exit status 3).
+    """
+
+    final: float | None = field(default=None, metadata=doc("final time T (uniform steps)", "s",
+                                                             gt=0))
+    steps: int | None = field(default=None, metadata=doc("number of uniform steps", "", min=1))
+    times: tuple[float, ...] | None = field(
+        default=None,
+        metadata=doc("listed step end times t_1 < t_2 < ... (instead of final/steps)", "s", gt=0),
+    )
+    max_cuts: int = field(
+        default=4, metadata=doc("halvings of a failed step before the run stops", "", min=0,
+                                max=20)
+    )
+
+    @property
+    def end(self) -> float:
+        """The final time (s)."""
+        return float(self.times[-1]) if self.times else float(self.final)
 
 
 @dataclass(frozen=True)
@@ -221,8 +306,11 @@ class Flow:
         metadata=doc("matrix permeability: [k] or [k_xx, k_yy] or [k_xx, k_xy, k_yy]", "m²")
     )
     viscosity: float = field(default=1e-3, metadata=doc("fluid viscosity η", "Pa·s", gt=0))
-    aperture: Expr = field(default=Expression(1e-4), metadata=doc("fracture aperture d_f", "m",
-                                                                   gt=0))
+    aperture: Expr = field(
+        default=Expression(1e-4),
+        metadata=doc("fracture aperture d_f; for poromechanics the aperture at contact d₀, and "
+                     "d_f = d₀ - [[u]]_n", "m", gt=0),
+    )
     fracture_permeability: Expr | None = field(
         default=None,
         metadata=doc("tangential fracture permeability K_f,τ (default d_f²/12)", "m²", gt=0),
@@ -276,7 +364,8 @@ class Probe:
     name: str = field(metadata=doc("probe name (file probe_<name>.csv)"))
     start: tuple[float, float] = field(metadata=doc("start point", "m"))
     end: tuple[float, float] = field(metadata=doc("end point", "m"))
-    samples: int = field(default=201, metadata=doc("number of sample points", "", min=2))
+    samples: int = field(default=201, metadata=doc("number of sample points", "", min=2,
+                                                    max=100_000))
     interpolation: Literal["linear", "constant"] = field(
         default="linear",
         metadata=doc("linear: p_m from the HFV cell gradient, p_f linear between face and node "
@@ -285,11 +374,51 @@ class Probe:
 
 
 @dataclass(frozen=True)
+class Coupling:
+    """The fixed point ``p = g(p)`` of a poromechanics step, solved by a PETSc SNES (``coupling_``).
+
+    ``g`` solves the contact mechanics at the given matrix and fracture pressures, then Darcy at
+    the resulting porosity and aperture (Beaude et al. 2023, §3).
+    """
+
+    method: Literal["anderson", "ngmres", "qn", "composite", "newtonkrylov", "picard"] = field(
+        default="anderson",
+        metadata=doc("anderson | ngmres | qn | composite (a Picard sweep, then Anderson) | "
+                     "newtonkrylov (matrix-free Newton-GMRES) | picard (plain fixed point)"),
+    )
+    rtol: float = field(
+        default=1e-5, metadata=doc("stop when |p - g(p)| <= rtol |p0 - g(p0)| (the paper's 1e-5)",
+                                   "", gt=0, lt=1)
+    )
+    atol: float = field(
+        default=1e-6,
+        metadata=doc("or when |p - g(p)| / sqrt(N) <= atol (a step that barely changes p)", "Pa",
+                     min=0),
+    )
+    max_it: int = field(default=100, metadata=doc("largest number of iterations", "", min=1))
+    memory: int = field(
+        default=5, metadata=doc("Anderson/NGMRES history (snes_anderson_m, snes_ngmres_m)", "",
+                                min=1, max=50)
+    )
+    extrapolate: bool = field(
+        default=True,
+        metadata=doc("start each step from p extrapolated linearly from the two previous steps"),
+    )
+    petsc: dict[str, str | float | int | bool | None] = field(
+        default_factory=dict,
+        metadata=doc("PETSc options of the fixed point, without the coupling_ prefix"),
+    )
+
+
+@dataclass(frozen=True)
 class Output:
     """What is written to the output directory."""
 
     xdmf: bool = field(default=True, metadata=doc("XDMF files for ParaView"))
-    vtx: bool = field(default=True, metadata=doc("VTX (ADIOS2) file of a P2 displacement"))
+    checkpoint: bool = field(
+        default=True,
+        metadata=doc("checkpoint.h5 after every step of a time-dependent run (for --restart)"),
+    )
     fractures_csv: bool = field(default=True, metadata=doc("fractures.csv, one row per face/time"))
     every: int = field(default=1, metadata=doc("write every n-th time step", "", min=1))
 
@@ -299,8 +428,9 @@ class Scene:
     """A complete simulation description."""
 
     name: str = field(metadata=doc("scene name"))
-    physics: Literal["mechanics", "flow"] = field(
-        default="mechanics", metadata=doc("mechanics (contact) or flow (Darcy only)")
+    physics: Literal["mechanics", "flow", "poromechanics"] = field(
+        default="mechanics",
+        metadata=doc("mechanics (contact), flow (Darcy only) or poromechanics (both, coupled)"),
     )
     description: str = field(default="", metadata=doc("free text"))
     parameters: dict[str, float] = field(
@@ -322,6 +452,12 @@ class Scene:
     )
     time: TimeSpec | None = field(default=None, metadata=doc("time stepping (absent: one solve)"))
     solver: Solver = field(default_factory=Solver, metadata=doc("nonlinear solver"))
-    flow: Flow | None = field(default=None, metadata=doc("Darcy flow (physics: flow)"))
+    flow: Flow | None = field(
+        default=None, metadata=doc("Darcy flow (physics: flow and poromechanics)")
+    )
+    coupling: Coupling = field(
+        default_factory=lambda: Coupling(),
+        metadata=doc("fixed point of the coupled solve (physics: poromechanics)"),
+    )
     probes: tuple[Probe, ...] = field(default=(), metadata=doc("sampling lines"))
     output: Output = field(default_factory=Output, metadata=doc("output selection"))

@@ -19,9 +19,11 @@ def generated(command: str, ranks: int) -> str:
     return f"Generated {datetime.date.today()} by `{command}` ({ranks} MPI rank(s))"
 
 
-def write_csv(path: Path, header: list[str], rows: list[list]) -> None:
-    """Write rows with a header."""
+def write_csv(path: Path, header: list[str], rows: list[list], comment: str | None = None) -> None:
+    """Write rows with a header, after an optional ``# comment`` line (e.g. the provenance)."""
     with open(path, "w", newline="") as f:
+        if comment is not None:
+            f.write(f"# {comment}\n")
         w = csv.writer(f)
         w.writerow(header)
         for r in rows:

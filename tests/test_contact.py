@@ -148,3 +148,124 @@ def test_only_what_is_needed_is_built():
     _, _, sim = solve("sneddon")
     assert sim.model.linear and [f.name for f in sim.model.unknowns] == ["u"]
     assert sim.records[0]["iterations"] == 1
+
+
+# -- contact states (issue 7 §2) ----------------------------------------------------------------
+@pytest.mark.parametrize("formulation", ["nitsche", "mixed"])
+def test_closed_frictionless_faces_slip(formulation):
+    """Without friction a closed face slides: its state is slip, never stick."""
+    _, values, sim = errors("inclined_crack_frictionless", f"contact.formulation={formulation}")
+    states = sim.model.states(values)
+    closed = values[:, 2] < 0
+    assert closed.sum() > 0.9 * len(closed)
+    assert np.all(states[closed] == 2) and not np.any(states == 1)
+
+
+@pytest.mark.parametrize("formulation", FORMULATIONS)
+def test_states_agree_with_the_written_face_means(formulation):
+    """Open exactly where the written traction_n is zero; slip exactly where the written
+    tractions are on the Coulomb cone. The slipping crack is closed everywhere, tips included."""
+    scene, _, sim = solve("inclined_crack_slip", f"contact.formulation={formulation}")
+    values = sim.model.face_fields()
+    states = sim.model.states(values)
+    tn, tt = values[:, 2], values[:, 3]
+    assert np.array_equal(states == 0, tn >= 0)
+    closed = tn < 0
+    on_cone = np.abs(tt) >= (1 - 1e-6) * scene.contact.friction_coefficient * np.abs(tn)
+    assert np.array_equal(states[closed] == 2, on_cone[closed])
+    assert np.all(states > 0)
+    sim.close()
+
+
+def test_readme_defines_contact_states():
+    """README: the state definition, and codes in fractures.xdmf against words in fractures.csv."""
+    from poromech.mechanics import STATE_NAMES
+
+    text = (ROOT / "README.md").read_text()
+    assert "**Contact states.**" in text
+    paragraph = text.split("**Contact states.**")[1].split("\n\n")[0]
+    assert "fractures.xdmf" in paragraph and "fractures.csv" in paragraph
+    for code, name in enumerate(STATE_NAMES):
+        assert f"`{code}`/`{name}`" in paragraph
+
+
+def test_face_means_use_the_contact_quadrature():
+    """Face fields are integrated with the Gauss points of the contact terms: the contact
+    fraction of a face is a multiple of the Gauss weights (P2: 5/18, 8/18, 5/18)."""
+    _, values, _ = errors("inclined_crack_slip", "mesh.refinement=0")
+    weights = np.array([5, 8, 5]) / 18
+    sums = {round(float(np.dot(weights, c)), 12) for c in np.ndindex(2, 2, 2)}
+    assert {round(float(f), 12) for f in values[:, 5]} <= sums
+    assert np.any((values[:, 5] > 0) & (values[:, 5] < 1))  # a tip face partly in contact
+
+
+# -- Nitsche parameters (issue 7 §3) ------------------------------------------------------------
+def model_of(name: str, *overrides: str):
+    from poromech.mechanics import MechanicsModel
+
+    scene = load_scene(ROOT / "configs" / f"{name}.yaml", list(overrides))
+    fm = build_mesh(scene, comm)
+    return scene, fm, MechanicsModel(fm, scene)
+
+
+def test_beta_defaults_are_relative_to_the_largest_young_modulus():
+    """β_n⁰ = 250 E_max, β_τ⁰ = 10 E_max by default (E_max over the cells); absolute values
+    given in the scene are kept."""
+    import dolfinx
+
+    scene, fm, model = model_of("inclined_crack_slip", "contact.beta_n=null",
+                                "contact.beta_t=null", "material.young=E*(2 + x)")
+    msh = fm.msh
+    n = msh.topology.index_map(2).size_local
+    x = dolfinx.mesh.compute_midpoints(msh, 2, np.arange(n, dtype=np.int32))
+    e_max = comm.allreduce(float((1e10 * (2 + x[:, 0])).max()), op=MPI.MAX)
+    assert model.young_max == pytest.approx(e_max, rel=1e-12)
+    assert model.beta0 == pytest.approx((250 * e_max, 10 * e_max), rel=1e-12)
+    _, _, model = model_of("inclined_crack_slip", "contact.beta_n=3e11", "contact.beta_t=null")
+    assert model.beta0 == pytest.approx((3e11, 1e11), rel=1e-12)
+
+
+def test_symmetric_nitsche_warns_below_its_coercivity_bound(caplog):
+    """θ = 1 with β_τ⁰ = 1.6 E (the issue's 40 GPa on E = 25 GPa) is below the bound: warned;
+    θ = 1 at β⁰ = 100 E and θ = -1 at any β⁰ are not."""
+    low = ["parameters.E=2.5e10", "contact.theta=1", "contact.beta_t=4e10"]
+    with caplog.at_level("WARNING", logger="poromech"):
+        _, _, model = model_of("inclined_crack_slip", *low)
+    assert model.coercivity_ratio > 1 and "coercivity bound" in caplog.text
+    assert model.warnings and "theta -1" in model.warnings[0]
+    _, _, model = model_of("inclined_crack_slip", "contact.theta=1")
+    assert model.coercivity_ratio < 1 and not model.warnings
+    _, _, model = model_of("inclined_crack_slip", *low[:1], "contact.beta_t=4e10")
+    assert not model.warnings
+
+
+@pytest.mark.parametrize("degree", [1, 2])
+def test_coercivity_ratio_bounds_the_global_eigenvalue(degree):
+    """The local bound ρ is sufficient: the largest eigenvalue of the Nitsche consistency term
+    against the elastic energy, on the whole cracked space with its Dirichlet conditions, is
+    below ρ (and within a factor 3 of it)."""
+    import scipy.linalg
+    import ufl
+    from dolfinx import fem
+
+    from poromech.coercivity import _traction_form, symmetric_nitsche_ratio
+    from poromech.forms.elasticity import elastic_form
+    from poromech.mesh import FRACTURE_TAG, fracture_measure
+
+    scene, fm, model = model_of("inclined_crack_slip", f"degree={degree}", "mesh.size=0.5",
+                                "mesh.tip_size=0.05", "mesh.fracture_size=0.2")
+    E, nu, bn, bt = 1e10, 0.25, 3e10, 1e10
+    rho = symmetric_nitsche_ratio(fm, degree, E, nu, bn, bt)
+    V = model.V
+    u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
+    n = ufl.FacetNormal(fm.msh)("+")
+    h = ufl.FacetArea(fm.msh)("+")
+    A = fem.assemble_matrix(fem.form(elastic_form(u, v, E, nu, ufl.dx(domain=fm.msh))))
+    B = fem.assemble_matrix(fem.form(_traction_form(u, v, n, h, E, nu, "plus", bn, bt)
+                                     * fracture_measure(fm)(FRACTURE_TAG)))
+    A, B = A.to_scipy().toarray(), B.to_scipy().toarray()
+    fixed = np.unique(np.concatenate([bc.dof_indices()[0] for bc in model.bcs]))
+    free = np.setdiff1d(np.arange(A.shape[0]), fixed)
+    lam = scipy.linalg.eigvalsh(B[np.ix_(free, free)], A[np.ix_(free, free)]).max()
+    assert lam <= rho * (1 + 1e-10)
+    assert lam >= rho / 3

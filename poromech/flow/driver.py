@@ -1,9 +1,9 @@
-"""Flow-only runs (``physics: flow``): steady or implicit Euler, output, probes, report.
+"""Flow-only runs (``physics: flow``): the Darcy physics behind the time loop.
 
-``run_flow(ctx)`` is called by ``poromech run`` with a context holding the scene, the fractured
-mesh, the output directory, a timer, the summary dictionary and the communicator. It builds no
-mechanics. Outputs: ``flow.xdmf`` and ``fractures_flow.xdmf`` (every output time),
-``probe_<name>.csv`` (final time) and ``summary["flow"]``.
+:class:`FlowSimulation` implements :class:`poromech.stepping.Physics` for a steady solve or
+implicit Euler steps; it builds no mechanics. Outputs: ``flow.xdmf`` and ``fractures_flow.xdmf``
+(every output time, from ``t = 0`` for transient runs), ``probe_<name>.csv`` (final time) and
+``summary["flow"]``.
 """
 
 from __future__ import annotations
@@ -14,6 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from poromech.checkpoint import Keyed
+from poromech.errors import SolverError
 from poromech.flow.balance import boundary_fluxes, compute_fluxes, mass_balance
 from poromech.flow.hfv import cell_gradients
 from poromech.flow.output import FlowWriter
@@ -21,23 +23,21 @@ from poromech.flow.problem import DarcyProblem, TimeStep
 from poromech.flow.setup import flow_properties, problem_from_scene, time_dependent
 from poromech.probes import LineSampler, write_csv
 from poromech.scene import Scene
+from poromech.stepping import StepResult, run_steps
 
-__all__ = ["run_flow", "write_probes"]
+__all__ = ["FlowSimulation", "run_flow", "solve_record", "write_probes"]
 
 log = logging.getLogger("poromech")
 
 
-def _solve_record(problem: DarcyProblem, t: float, step: TimeStep | None) -> dict[str, Any]:
+def solve_record(problem: DarcyProblem, t: float, step: TimeStep | None) -> dict[str, Any]:
     """Solver statistics and conservation of the last solve (collective)."""
     fluxes = compute_fluxes(problem)
     rec = problem.records[-1]
-    balance = mass_balance(problem, fluxes, t, step)
-    log.info("flow t=%g s: %s in %d iterations, %.3f s; mass balance residual %.1e (relative)",
-             t, rec.reason, rec.iterations, rec.seconds, balance["relative_residual"])
     return {
         "time": t,
         **rec.as_dict(),
-        "mass_balance": balance,
+        "mass_balance": mass_balance(problem, fluxes, t, step),
         "boundary_fluxes": boundary_fluxes(problem, fluxes),
     }
 
@@ -53,7 +53,7 @@ def write_probes(scene: Scene, problem: DarcyProblem, outdir: Path) -> None:
         sampler = LineSampler(fm.msh, probe.start, probe.end, probe.samples, faces)
         linear = probe.interpolation == "linear"
         p_m = sampler.cells(problem.cell_pressure, grads if linear else None, g.centroid)
-        p_f = sampler.faces(problem.fracture_pressure, problem.node_pressure if linear else None)
+        p_f = sampler.faces(problem.fracture_pressure, problem.branch_pressure if linear else None)
         if problem.comm.rank == 0:
             x = sampler.points
             write_csv(Path(outdir) / f"probe_{probe.name}.csv", {
@@ -62,101 +62,192 @@ def write_probes(scene: Scene, problem: DarcyProblem, outdir: Path) -> None:
             })
 
 
-def _initial_step_data(scene: Scene, problem: DarcyProblem):
-    """Porosity bookkeeping of a flow-only transient run from ``p⁰`` (owned cells)."""
-    flow = scene.flow
-    problem.set_pressure(flow.initial_pressure, 0.0)
-    s = problem.properties.storage
-    phi_prev = np.full(problem.geom.num_cells, flow.porosity)
-    phi_fixed = phi_prev - s * problem.cell_pressure
-    return phi_prev, phi_fixed
+class FlowSimulation:
+    """A flow-only scene as a :class:`~poromech.stepping.Physics` (collective methods).
+
+    Args:
+        scene: The scene (``physics: flow``).
+        fm: The fractured mesh.
+        timer: Wall-time accounting.
+    """
+
+    def __init__(self, scene: Scene, fm, timer):
+        self.scene, self.fm, self.timer = scene, fm, timer
+        with timer.phase("flow_setup"):
+            self.problem = problem_from_scene(scene, fm)
+        solver = self.problem.solver.describe()
+        log.info("flow: %d unknowns (%s), solver %s/%s", self.problem.dofs.num_global,
+                 ", ".join(f"{v} {k}" for k, v in self.problem.dofs.counts.items()),
+                 solver["ksp_type"], solver["pc_type"])
+        self.varying = time_dependent(scene)
+        self.writer: FlowWriter | None = None
+        self.outdir: Path | None = None
+        self.records: list[dict] = []
+        self.has_initial_output = scene.time is not None
+        self._step: TimeStep | None = None
+        self._accepted_p = self.problem.p.copy()
+        self.phi_prev = self.phi_fixed = self.aperture_prev = None
+
+    def describe(self) -> dict:
+        """Nothing beyond the flow report (``summary["flow"]``)."""
+        return {}
+
+    def initialize(self) -> dict | None:
+        """Initial pressure and porosity of a transient run (no solve)."""
+        if self.scene.time is None:
+            return None
+        flow, pb = self.scene.flow, self.problem
+        pb.set_pressure(flow.initial_pressure, 0.0)
+        self.phi_prev = np.full(pb.geom.num_cells, flow.porosity)
+        self.phi_fixed = self.phi_prev - pb.properties.storage * pb.cell_pressure
+        self.aperture_prev = pb.properties.aperture.copy()
+        self._accepted_p = pb.p.copy()
+        return None
+
+    def solve(self, t: float, dt: float | None) -> StepResult:
+        """One steady solve or one implicit Euler step ending at ``t``."""
+        pb = self.problem
+        if self.varying and dt is not None:
+            pb.set_properties(flow_properties(self.scene, self.fm, pb.geom, t))
+        self._step = None if dt is None else TimeStep(dt, self.phi_prev, self.phi_fixed,
+                                                      self.aperture_prev)
+        try:
+            with self.timer.phase("flow_solve"):
+                pb.solve(t, self._step)
+        except SolverError as err:
+            return StepResult(False, {"time": t, **err.record}, str(err), err.reason,
+                              err.history)
+        record = solve_record(pb, t, self._step)
+        return StepResult(True, record)
+
+    def progress(self, k: int, n: int, t: float, result: StepResult) -> str:
+        """One line per step: iterations and the mass balance."""
+        r = result.record
+        return (f"flow step {k + 1}/{n} t={t:g} s: {r['reason']} in {r['iterations']} "
+                f"iterations; mass balance residual {r['mass_balance']['relative_residual']:.1e} "
+                "(relative)")
+
+    def accept(self, t: float) -> None:
+        """The solved porosity and aperture become those of the previous step."""
+        pb = self.problem
+        if self._step is not None:
+            self.phi_prev = pb.porosity(self._step)
+            self.aperture_prev = pb.properties.aperture.copy()
+        self._accepted_p = pb.p.copy()
+
+    def reject(self) -> None:
+        """Back to the pressures of the last accepted step (the initial guess)."""
+        self.problem.p[:] = self._accepted_p
+        self.problem._write_guess()
+
+    # -- output --------------------------------------------------------------------------
+    def open_output(self, outdir: Path, resume_until: float | None = None) -> None:
+        """Create the XDMF writers (if selected by ``output.xdmf``)."""
+        self.outdir = Path(outdir)
+        if self.scene.output.xdmf:
+            with self.timer.phase("flow_output"):
+                self.writer = FlowWriter(self.problem, self.outdir, resume_until=resume_until)
+
+    def write(self, t: float) -> None:
+        """Write the flow fields at ``t``."""
+        if self.writer is not None:
+            with self.timer.phase("flow_output"):
+                self.writer.write(t, compute_fluxes(self.problem))
+
+    def finish(self, summary: dict) -> None:
+        """Probes at the last solved time and the flow report (``summary["flow"]``)."""
+        if self.outdir is not None and self.records and self.records[-1].get("reason", "") \
+                .startswith("CONVERGED"):
+            with self.timer.phase("flow_output"):
+                write_probes(self.scene, self.problem, self.outdir)
+        summary.setdefault("flow", {}).update(flow_report(self.problem, self.records))
+
+    # -- checkpoint ----------------------------------------------------------------------
+    def state(self) -> dict[str, Keyed]:
+        """Pressures, porosity and aperture of the accepted step."""
+        return flow_state(self.problem, self.phi_prev, self.aperture_prev)
+
+    def restore(self, arrays: dict, t: float) -> None:
+        """Continue after the step ending at ``t`` from checkpoint arrays."""
+        self.initialize()
+        restore_pressure(self.problem, arrays)
+        self.phi_prev = arrays["porosity"][_cells(self.fm)]
+        self.aperture_prev = arrays["aperture"][self.fm.fractures.index]
+        self._accepted_p = self.problem.p.copy()
+
+    def close(self) -> None:
+        """Free the PETSc objects."""
+        self.problem.destroy()
 
 
-def _transient(ctx, problem: DarcyProblem, writer: FlowWriter | None, records: list) -> None:
-    """Implicit Euler steps with output every ``output.every`` steps."""
-    scene, timer = ctx.scene, ctx.timer
-    dt = scene.time.final / scene.time.steps
-    phi_prev, phi_fixed = _initial_step_data(scene, problem)
-    varying = time_dependent(scene)
-    geom = problem.geom
-    if writer is not None:
-        with timer.phase("flow_output"):
-            writer.write(0.0, compute_fluxes(problem))
-    aperture_prev = problem.properties.aperture.copy()
-    for n in range(1, scene.time.steps + 1):
-        t = n * dt
-        if varying:
-            problem.set_properties(flow_properties(scene, ctx.fm, geom, t))
-        step = TimeStep(dt, phi_prev, phi_fixed, aperture_prev)
-        with timer.phase("flow_solve"):
-            problem.solve(t, step)
-        records.append(_solve_record(problem, t, step))
-        aperture_prev = problem.properties.aperture.copy()
-        phi_prev = problem.porosity(step)
-        last = n == scene.time.steps
-        if writer is not None and (n % scene.output.every == 0 or last):
-            with timer.phase("flow_output"):
-                writer.write(t, compute_fluxes(problem))
+def _cells(fm) -> np.ndarray:
+    """Input (gmsh) numbers of the owned cells."""
+    n = fm.msh.topology.index_map(2).size_local
+    return np.asarray(fm.msh.topology.original_cell_index, dtype=np.int64)[:n]
 
 
-def _summary(problem: DarcyProblem, records: list) -> dict[str, Any]:
-    """The ``summary["flow"]`` entry: sizes, solver, per-solve records, final conservation."""
+def flow_state(problem: DarcyProblem, porosity, aperture) -> dict[str, Keyed]:
+    """Cell and fracture pressures, porosity and aperture keyed by input cell / global face."""
+    fm = problem.fm
+    cells, faces = _cells(fm), fm.fractures.index.astype(np.int64)
+    out = {"p_cell": (cells, problem.cell_pressure), "p_fracture": (faces,
+                                                                    problem.fracture_pressure)}
+    if porosity is not None:
+        out["porosity"] = (cells, porosity)
+    if aperture is not None:
+        out["aperture"] = (faces, aperture)
+    return out
+
+
+def restore_pressure(problem: DarcyProblem, arrays: dict) -> None:
+    """Cell and fracture pressures from a checkpoint (other unknowns keep their guess)."""
+    fm, d = problem.fm, problem.dofs
+    problem.p[d.cell] = arrays["p_cell"][_cells(fm)]
+    if len(d.fracture):
+        problem.p[d.fracture] = arrays["p_fracture"][fm.fractures.index]
+    problem._write_guess()
+
+
+def flow_report(problem: DarcyProblem, records: list) -> dict[str, Any]:
+    """The ``summary["flow"]`` entry: sizes, solver, final conservation (records separate)."""
     counts = problem.dofs.counts
     out: dict[str, Any] = {
         "unknowns": {"total": problem.dofs.num_global, **counts},
         "solver": problem.solver.describe(),
-        "solves": records,
-        "linear_iterations": int(sum(r["iterations"] for r in records)),
-        "solve_seconds": float(sum(r["seconds"] for r in records)),
+        "linear_iterations": int(sum(r.get("iterations", 0) for r in records)),
+        "solve_seconds": float(sum(r.get("seconds", 0.0) for r in records)),
         "flux_unit": "m^2/s (volumetric flux per unit depth)",
     }
-    if records:
-        last = records[-1]
+    done = [r for r in records if "mass_balance" in r]
+    if done:
+        last = done[-1]
         out["conservation"] = {
             "time": last["time"],
             **last["mass_balance"],
-            "max_relative_residual": max(r["mass_balance"]["relative_residual"] for r in records),
+            "max_relative_residual": max(r["mass_balance"]["relative_residual"] for r in done),
             "boundary_fluxes": last["boundary_fluxes"],
         }
     return out
 
 
 def run_flow(ctx) -> None:
-    """Run a flow-only scene (collective).
+    """Run a flow-only scene without checkpoints (collective; studies and tests).
 
     Args:
-        ctx: Run context with attributes ``scene`` (:class:`Scene`), ``fm``
-            (:class:`~poromech.mesh.FracturedMesh`), ``outdir`` (existing directory),
-            ``timer`` (:class:`~poromech.timing.Timer`), ``summary`` (dict, filled here) and
-            ``comm``.
+        ctx: Run context with ``scene``, ``fm``, ``outdir`` (existing directory), ``timer``
+            and ``summary`` (filled here: ``summary["flow"]``).
 
     Raises:
         poromech.errors.SolverError: A linear solve did not converge (the summary then holds
             the solves done so far).
     """
-    scene, timer = ctx.scene, ctx.timer
-    with timer.phase("flow_setup"):
-        problem = problem_from_scene(scene, ctx.fm)
-        solver = problem.solver.describe()
-        log.info("flow: %d unknowns (%s), solver %s/%s", problem.dofs.num_global,
-                 ", ".join(f"{v} {k}" for k, v in problem.dofs.counts.items()),
-                 solver["ksp_type"], solver["pc_type"])
-        writer = FlowWriter(problem, Path(ctx.outdir)) if scene.output.xdmf else None
-    records: list[dict[str, Any]] = []
+    sim = FlowSimulation(ctx.scene, ctx.fm, ctx.timer)
+    ctx.summary.setdefault("flow", {})["solves"] = sim.records
     try:
-        if scene.time is None:
-            with timer.phase("flow_solve"):
-                problem.solve(0.0)
-            records.append(_solve_record(problem, 0.0, None))
-            if writer is not None:
-                with timer.phase("flow_output"):
-                    writer.write(0.0, compute_fluxes(problem))
-        else:
-            _transient(ctx, problem, writer, records)
-        with timer.phase("flow_output"):
-            write_probes(scene, problem, Path(ctx.outdir))
+        sim.initialize()
+        sim.open_output(Path(ctx.outdir))
+        run_steps(sim, ctx.scene, ctx.comm, sim.records, lambda k, t: None,
+                  write_initial=sim.has_initial_output)
     finally:
-        ctx.summary["flow"] = _summary(problem, records)
-        if writer is not None:
-            writer.close()
-        problem.destroy()
+        sim.finish(ctx.summary)
+        sim.close()

@@ -28,6 +28,11 @@ from poromech.flow import hfv
 from poromech.flow.boundary import FlowBoundary, boundary_dofs
 from poromech.flow.dofs import FlowDofs, number_dofs
 from poromech.flow.entities import CellGeometry, cell_geometry
+from poromech.flow.intersections import (
+    FractureCrossings,
+    crossing_resistance,
+    series_transmissibilities,
+)
 from poromech.flow.shift import TraceShift
 from poromech.flow.solver import LinearRecord, LinearSolver
 from poromech.flow.system import (
@@ -152,7 +157,11 @@ class DarcyProblem:
         bdofs: Where the boundary conditions act.
         A_cell: Cell matrices ``A_K / η`` of the owned cells, ``(nc, 3, 3)`` (m²/(Pa·s)).
         t_pair: ``|σ| T_f / η`` of the owned fracture faces (m²/(Pa·s)).
-        T_fracture: ``T_{σ,e} / η`` to both nodes of the owned fracture faces, ``(nf, 2)``.
+        T_fracture: ``T*_{σ,e} / η`` to both nodes of the owned fracture faces, ``(nf, 2)``:
+            the half-face transmissibility, in series with the resistance of the overlap with
+            the fractures crossed at that node (:mod:`poromech.flow.intersections`).
+        T_half: ``T_{σ,e} / η``, the half-face part of ``T_fracture``, ``(nf, 2)``.
+        crossings: Which face ends cross another fracture at their node.
         p: Current solution on the local (owned, then ghost) dofs (Pa).
         records: One :class:`LinearRecord` per solve.
     """
@@ -175,6 +184,7 @@ class DarcyProblem:
         self.geom: CellGeometry = cell_geometry(fm) if geom is None else geom
         self.dofs: FlowDofs = number_dofs(fm, self.geom)
         self.faces = _fracture_faces(fm, self.dofs)
+        self.crossings = FractureCrossings(self.comm, self.dofs, fm.fractures.fracture)
         self.boundary = tuple(boundary)
         self.bdofs = boundary_dofs(self.dofs, self.geom, fm.geometry.boundary, self.boundary)
         self.source, self.fracture_source = source, fracture_source
@@ -216,11 +226,17 @@ class DarcyProblem:
         self._update_fracture()
 
     def _update_fracture(self) -> None:
-        eta = self.properties.viscosity
-        self.t_pair = self.faces.length * normal_transmissibility(self.properties) / eta
-        half = hfv.fracture_half_transmissibilities(
-            self.faces.length, fracture_conductivity(self.properties)) / eta
-        self.T_fracture = np.column_stack([half, half])
+        """Fracture transmissibilities from the current properties (collective)."""
+        props, eta = self.properties, self.properties.viscosity
+        T_f = normal_transmissibility(props)
+        self.t_pair = self.faces.length * T_f / eta
+        C_f = fracture_conductivity(props)
+        half = hfv.fracture_half_transmissibilities(self.faces.length, C_f)
+        with np.errstate(divide="ignore"):
+            crossed = self.crossings.averages(np.column_stack([0.5 / T_f, props.aperture]))
+        added = crossing_resistance(crossed, C_f, props.aperture)
+        self.T_half = np.column_stack([half, half]) / eta
+        self.T_fracture = series_transmissibilities(self.T_half, added)
         self._values = None
         if self.shift.update(self.A_cell, self.t_pair):
             self._write_guess()
@@ -371,6 +387,20 @@ class DarcyProblem:
     def node_pressure(self) -> Array:
         """``p_e`` at the two ends of the owned fracture faces ``(nf, 2)``."""
         return self.p[self.dofs.node]
+
+    @property
+    def branch_pressure(self) -> Array:
+        """Pressure at both ends of the owned fracture faces, on the face's side ``(nf, 2)`` (Pa).
+
+        ``p_e`` where the face crosses no fracture at that end; where it does, the value before
+        the crossed fracture's resistance, ``p_f - (T*_{σ,e}/T_{σ,e}) (p_f - p_e)`` (the flux
+        ``T*(p_f - p_e)`` divided by the half-face transmissibility). For fracture profiles:
+        behind a blocking intersection the branch keeps its own pressure up to the crossing.
+        """
+        p_f = self.fracture_pressure[:, None]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.where(self.T_half > 0, self.T_fracture / self.T_half, 1.0)
+        return p_f - ratio * (p_f - self.node_pressure)
 
     def porosity(self, step: TimeStep) -> Array:
         """``φ_Kⁿ = φ̂_Kⁿ + s_K p_Kⁿ`` after a step (owned cells)."""

@@ -6,7 +6,9 @@ semi-definite element matrices:
 
 * matrix cell ``K`` on ``[p_K, p_{K,σ_1..3}]``: ``[[1ᵀA1, -(A1)ᵀ], [-A1, A]]`` with ``A = A_K / η``;
 * matrix-fracture pair on ``[p_{K,σ}, p_{f,σ}]``: ``|σ| T_f / η · [[1, -1], [-1, 1]]``;
-* fracture face on ``[p_{f,σ}, p_{e_1}, p_{e_2}]``: two-point fluxes ``T_{σ,e} / η``;
+* fracture face on ``[p_{f,σ}, p_{e_1}, p_{e_2}]``: two-point fluxes ``T*_{σ,e} / η`` (half
+  face and, at an intersection, the overlap with the crossed fractures:
+  :mod:`poromech.flow.intersections`);
 * storage on ``[p_K]``: ``|K| s_K / Δt`` (zero for steady solves).
 
 On fracture faces with a stiff normal coupling the system is solved for

@@ -3,30 +3,45 @@
 * :class:`JumpSolution`: the manufactured solution with pressure jumps of DESIGN §5 on
   ``Ω = (-1, 1) × (0, 1)`` with the fracture ``{x = 0}``;
 * :class:`Diffusion1D`: decay of a sine mode with storage, ``s ∂p/∂t = (k/η) ∂²p/∂x²``;
-* discrete L² norms over owned cells and fracture faces, reduced over the communicator.
+* discrete L² norms over owned cells and fracture faces, reduced over the communicator;
+* the blocking-intersection scenes of issue 7 (``configs/flow_barrier_conduit*.yaml``): a
+  barrier crossed by a conduit, the conduit cut short of it, the barrier alone
+  (:data:`BARRIER_VARIANTS`, :func:`barrier_metrics`).
 """
 
 from __future__ import annotations
 
+import importlib.resources
 from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
 from mpi4py import MPI
 
+from poromech.config import load_scene, plane_geometry
+from poromech.flow.balance import boundary_fluxes, compute_fluxes, mass_balance
 from poromech.flow.boundary import FlowBoundary
-from poromech.flow.hfv import isotropic_tensor
+from poromech.flow.hfv import cell_gradients, isotropic_tensor
 from poromech.flow.problem import DarcyProblem, FlowProperties, TimeStep
+from poromech.flow.setup import problem_from_scene
 from poromech.geometry import PlaneGeometry
 from poromech.mesh import FracturedMesh, create_fractured_mesh
 from poromech.meshing import MeshSizes, generate_mesh
+from poromech.probes import LineSampler
+from poromech.scene import Scene
 
 __all__ = [
+    "BARRIER_VARIANTS",
     "Diffusion1D",
     "JumpSolution",
+    "barrier_metrics",
+    "barrier_scene",
     "build_mesh",
+    "line_pressure",
+    "mesh_with_sizes",
     "observed_orders",
     "rectangle",
+    "solve_scene",
 ]
 
 Array = npt.NDArray[np.float64]
@@ -51,10 +66,19 @@ def build_mesh(comm: MPI.Comm, geo: PlaneGeometry, size: float, refinement: int 
         refinement: Uniform refinement level.
         owner: Optional callable ``owner(centroids) -> ranks`` imposing the partition.
     """
+    return mesh_with_sizes(comm, geo, MeshSizes(size, size, size, size, refinement), owner)
+
+
+def mesh_with_sizes(comm: MPI.Comm, geo: PlaneGeometry, sizes: MeshSizes,
+                    owner=None) -> FracturedMesh:
+    """Mesh ``geo`` on rank 0 and distribute it, optionally with an imposed partition.
+
+    Collective. ``owner(centroids) -> ranks`` places the input cells.
+    """
     arrays = None
     ranks = None
     if comm.rank == 0:
-        arrays = generate_mesh(geo, MeshSizes(size, size, size, size, refinement))
+        arrays = generate_mesh(geo, sizes)
         if owner is not None:
             ranks = np.asarray(owner(arrays.x[arrays.cells].mean(axis=1)), dtype=np.int32)
     return create_fractured_mesh(comm, geo, arrays, owner=ranks)
@@ -206,3 +230,71 @@ class Diffusion1D:
         exact = self.pressure(*g.centroid.T, final)
         comm = problem.comm
         return l2(comm, g.volume, problem.cell_pressure - exact) / l2(comm, g.volume, exact)
+
+
+#: The barrier alone: ``configs/flow_barrier_conduit.yaml`` without the conduit (an override).
+BARRIER_ONLY = ("geometry={domain: {rectangle: [0.0, 0.0, 1.0, 1.0]}, "
+                "fractures: [{name: barrier, points: [[0.5, 0.0], [0.5, 1.0]]}]}")
+
+#: Issue 7 variants: scene file in ``configs/`` and overrides. ``crossing``: the conduit crosses
+#: the barrier (X junction); ``cut``: the conduit stops 1 mm short of it on both sides;
+#: ``barrier``: no conduit.
+BARRIER_VARIANTS = {
+    "crossing": ("flow_barrier_conduit.yaml", ()),
+    "cut": ("flow_barrier_conduit_cut.yaml", ()),
+    "barrier": ("flow_barrier_conduit.yaml", (BARRIER_ONLY,)),
+}
+
+#: Distance from the barrier ``x = 0.5`` at which ``p_m`` is read on ``y = 0.5`` (m).
+JUMP_OFFSET = 1e-4
+
+
+def barrier_scene(variant: str, refinement: int = 0, overrides=()) -> Scene:
+    """A variant of the issue 7 scene (:data:`BARRIER_VARIANTS`) at a refinement level."""
+    name, extra = BARRIER_VARIANTS[variant]
+    path = importlib.resources.files("poromech.configs").joinpath(name)
+    return load_scene(path, [*extra, f"mesh.refinement={refinement}", *overrides])
+
+
+def solve_scene(scene: Scene, comm: MPI.Comm, owner=None) -> DarcyProblem:
+    """Mesh a steady flow scene and solve it, without output (collective).
+
+    ``owner(centroids) -> ranks`` optionally imposes the partition.
+    """
+    from poromech.run import mesh_sizes  # the scene's sizes with their documented defaults
+
+    fm = mesh_with_sizes(comm, plane_geometry(scene), mesh_sizes(scene), owner)
+    problem = problem_from_scene(scene, fm)
+    problem.solve(0.0)
+    return problem
+
+
+def line_pressure(problem: DarcyProblem, start, end, samples: int) -> Array:
+    """Linear reconstruction of ``p_m`` at ``samples`` points of a segment, on every rank.
+
+    The reconstruction ``p_K + ∇_K p·(x - x_K)`` of the probes (collective).
+    """
+    g = problem.geom
+    grads = cell_gradients(g.area, g.normal, g.volume, problem.cell_pressure,
+                           problem.face_pressure)
+    sampler = LineSampler(problem.fm.msh, start, end, samples)
+    values = sampler.cells(problem.cell_pressure, grads, g.centroid)
+    return problem.comm.bcast(values, root=0)
+
+
+def barrier_metrics(problem: DarcyProblem, offset: float = JUMP_OFFSET) -> dict[str, float]:
+    """Outflow on the right, pressure jump across the barrier on ``y = 0.5`` (collective).
+
+    Returns:
+        ``outflow`` (m²/s per unit depth), ``jump`` ``p_m(0.5 - offset, 0.5) -
+        p_m(0.5 + offset, 0.5)`` (Pa), the ``relative_residual`` of the mass balance and the
+        number of ``unknowns``.
+    """
+    fluxes = compute_fluxes(problem)
+    left, right = line_pressure(problem, (0.5 - offset, 0.5), (0.5 + offset, 0.5), 2)
+    return {
+        "outflow": boundary_fluxes(problem, fluxes)["right"]["total"],
+        "jump": float(left - right),
+        "relative_residual": mass_balance(problem, fluxes)["relative_residual"],
+        "unknowns": problem.dofs.num_global,
+    }

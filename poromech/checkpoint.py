@@ -1,0 +1,110 @@
+"""Checkpoints for ``poromech run --restart``: partition-independent state in one HDF5 file.
+
+Every array is stored in a global numbering that does not depend on the MPI partition: rows
+keyed by the input (gmsh) cell number for cell-wise data and for the dofs of a Lagrange function
+(one row per cell: the values of its dofs), by the global fracture face number for face-wise
+data. A run can therefore be continued on any number of ranks, from the same scene (the mesh is
+generated again, identically, from the scene stored next to the outputs).
+
+The file is written by rank 0 through a temporary name and a rename, so a killed run keeps the
+checkpoint of its last completed step. (``adios4dolfinx``, the FEniCSx checkpoint library, does
+not install with the pinned stack — it requires a ``fenics-dolfinx`` distribution and the
+``adios2`` Python bindings, neither of which the ``dolfinx-solver-real`` wheel provides — and it
+stores functions on standard dofmaps, not on the duplicated-node spaces used here.)
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import dolfinx_solver  # noqa: F401
+
+import h5py
+import numpy as np
+import numpy.typing as npt
+from dolfinx import fem
+from mpi4py import MPI
+
+from poromech.mesh import FracturedMesh
+from poromech.xdmf import atomic_h5, gather_rows, root_write
+
+__all__ = [
+    "CHECKPOINT",
+    "cell_dof_rows",
+    "face_dof_rows",
+    "load_checkpoint",
+    "save_checkpoint",
+    "set_cell_dof_rows",
+    "set_face_dof_rows",
+]
+
+#: File name of the checkpoint in the output directory.
+CHECKPOINT = "checkpoint.h5"
+
+Keyed = tuple[npt.NDArray[np.int64], npt.NDArray]
+
+
+def save_checkpoint(comm: MPI.Comm, outdir: Path, meta: dict, arrays: dict[str, Keyed]) -> None:
+    """Write the keyed arrays (global row ids, values) and metadata atomically (collective)."""
+    full = {name: gather_rows(comm, ids, values) for name, (ids, values) in arrays.items()}
+    root_write(comm, _write, Path(outdir) / CHECKPOINT, meta, full)
+
+
+def _write(path: Path, meta: dict, full: dict) -> None:
+    with atomic_h5(path) as f:
+        f.attrs["meta"] = json.dumps(meta)
+        for name, arr in full.items():
+            f[name] = arr
+
+
+def load_checkpoint(comm: MPI.Comm, outdir: Path) -> tuple[dict, dict[str, np.ndarray]]:
+    """Read a checkpoint on every rank (collective): metadata and full arrays."""
+    path = Path(outdir) / CHECKPOINT
+    data = None
+    if comm.rank == 0:
+        with h5py.File(path, "r") as f:
+            data = (json.loads(f.attrs["meta"]), {k: f[k][()] for k in f.keys()})
+    return comm.bcast(data, root=0)
+
+
+def _original_cells(fm: FracturedMesh, owned: bool) -> npt.NDArray[np.int64]:
+    imap = fm.msh.topology.index_map(fm.msh.topology.dim)
+    n = imap.size_local + (0 if owned else imap.num_ghosts)
+    return np.asarray(fm.msh.topology.original_cell_index, dtype=np.int64)[:n]
+
+
+def cell_dof_rows(fm: FracturedMesh, f: fem.Function) -> Keyed:
+    """The dof values of every owned cell of a function on ``fm.msh``, keyed by input cell."""
+    keys = _original_cells(fm, owned=True)
+    bs = f.function_space.dofmap.index_map_bs
+    dofs = f.function_space.dofmap.list[: len(keys)]
+    return keys, f.x.array.reshape(-1, bs)[dofs].reshape(len(keys), -1)
+
+
+def set_cell_dof_rows(fm: FracturedMesh, f: fem.Function, rows: np.ndarray) -> None:
+    """Inverse of :func:`cell_dof_rows`, from the full array, on owned and ghost cells."""
+    keys = _original_cells(fm, owned=False)
+    bs = f.function_space.dofmap.index_map_bs
+    dofs = f.function_space.dofmap.list[: len(keys)]
+    f.x.array.reshape(-1, bs)[dofs] = rows[keys].reshape(len(keys), dofs.shape[1], bs)
+    f.x.scatter_forward()
+
+
+def _face_dofs(fm: FracturedMesh, f: fem.Function, emap) -> npt.NDArray[np.int32]:
+    cells = emap.sub_topology_to_topology(fm.fractures.facets, inverse=True)
+    return f.function_space.dofmap.list[cells, 0]
+
+
+def face_dof_rows(fm: FracturedMesh, f: fem.Function, emap) -> Keyed:
+    """Values of a DG0 function on the fracture submesh, keyed by global fracture face."""
+    bs = f.function_space.dofmap.index_map_bs
+    values = f.x.array.reshape(-1, bs)[_face_dofs(fm, f, emap)]
+    return fm.fractures.index.astype(np.int64), values
+
+
+def set_face_dof_rows(fm: FracturedMesh, f: fem.Function, emap, rows: np.ndarray) -> None:
+    """Inverse of :func:`face_dof_rows` (owned faces, then a ghost update)."""
+    bs = f.function_space.dofmap.index_map_bs
+    f.x.array.reshape(-1, bs)[_face_dofs(fm, f, emap)] = rows[fm.fractures.index].reshape(-1, bs)
+    f.x.scatter_forward()

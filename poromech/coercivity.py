@@ -1,0 +1,100 @@
+"""When is symmetric Nitsche (θ = 1) coercive? A local trace-inverse bound, computed on the mesh.
+
+With θ = 1 the open branch of eq. (8) leaves ``-∫_Γ (1/β_n) T_n(u) T_n(v) + (1/β_τ) T_τ(u) T_τ(v)``
+in the bilinear form, and the contact branch ``a - 2 T·[[v]] + β [[v]]²`` is bounded below by the
+same ``a - T²/β``. The Jacobian is therefore positive definite on every branch when, for all
+``v``, ``a(v, v) > Σ_F h_F ∫_F T_n(v)²/β_n⁰ + T_τ(v)²/β_τ⁰`` (``β = β⁰/h_F``). A sufficient,
+computable condition is that every cell ``K`` next to the fractures satisfies it alone:
+
+    ρ_K = max_{v ∈ P_k(K)²} Σ_{F ⊂ ∂K ∩ Γ} w_F h_F ∫_F (T_n(v)²/β_n⁰ + T_τ(v)²/β_τ⁰) / ∫_K σ(v):ε(v)
+
+and ``ρ = max_K ρ_K < 1`` (``w_F = 1`` for the ``+`` cell when the traction is taken on the
+``+`` side, ``1/2`` for each side for the mean traction). ``ρ`` is proportional to ``E/β⁰``, and
+grows with the degree, with flat cells and towards incompressibility. Below ``ρ < 1`` nothing is
+guaranteed: the discrete problem may have no solution or several, and Newton may converge to a
+wrong one (docs/mechanics.md, "Symmetric Nitsche").
+"""
+
+from __future__ import annotations
+
+import dolfinx_solver  # noqa: F401
+
+import numpy as np
+import numpy.typing as npt
+import scipy.linalg
+import ufl
+from dolfinx import fem
+from mpi4py import MPI
+
+from poromech.forms.elasticity import epsilon, sigma
+from poromech.forms.fracture import tangent
+from poromech.mesh import FRACTURE_TAG, FracturedMesh, fracture_measure
+
+__all__ = ["symmetric_nitsche_ratio"]
+
+
+def _traction_form(u, v, n, h, young, poisson, side: str, beta_n0: float, beta_t0: float):
+    """``Σ w h (T_n(u) T_n(v)/β_n⁰ + T_τ(u) T_τ(v)/β_τ⁰)`` on the chosen side(s) (integrand)."""
+    tau = tangent(n)
+    sides = (("+", 1.0),) if side == "plus" else (("+", 0.5), ("-", 0.5))
+    terms = []
+    for s, w in sides:
+        tu = ufl.dot(sigma(u, young, poisson)(s), n)
+        tv = ufl.dot(sigma(v, young, poisson)(s), n)
+        terms.append(w * (ufl.dot(tu, n) * ufl.dot(tv, n) / beta_n0
+                          + ufl.dot(tu, tau) * ufl.dot(tv, tau) / beta_t0))
+    return h * sum(terms[1:], terms[0])
+
+
+def _cell_ratio(A: npt.NDArray[np.float64], B: npt.NDArray[np.float64]) -> float:
+    """Largest ``vᵀBv / vᵀAv`` off the kernel of ``A`` (the rigid motions of the cell)."""
+    lam, Z = scipy.linalg.eigh(A)
+    keep = lam > 1e-10 * lam.max()
+    Zs = Z[:, keep] / np.sqrt(lam[keep])
+    return float(scipy.linalg.eigvalsh(Zs.T @ B @ Zs).max())
+
+
+def symmetric_nitsche_ratio(fm: FracturedMesh, degree: int, young: npt.ArrayLike,
+                            poisson: npt.ArrayLike, beta_n0: float, beta_t0: float,
+                            side: str = "plus") -> float:
+    """The ratio ``ρ`` above: symmetric Nitsche is coercive on this mesh when ``ρ < 1``.
+
+    Args:
+        fm: The fractured mesh.
+        degree: Displacement degree ``k``.
+        young: Young's modulus (Pa) per local cell (owned and ghost), or one value.
+        poisson: Poisson's ratio per local cell, or one value.
+        beta_n0: ``β_n⁰`` (Pa).
+        beta_t0: ``β_τ⁰`` (Pa).
+        side: ``"plus"`` or ``"mean"``, as ``contact.traction_side``.
+
+    Returns:
+        ``ρ`` (identical on every rank; 0 without fractures). Collective. In parallel, a cell
+        whose fracture faces belong to different ranks is bounded per rank.
+    """
+    msh = fm.msh
+    if fm.num_fracture_faces == 0:
+        return 0.0
+    Q0 = fem.functionspace(msh, ("DG", 0))
+    E, nu = fem.Function(Q0), fem.Function(Q0)
+    ncells = Q0.dofmap.index_map.size_local + Q0.dofmap.index_map.num_ghosts
+    E.x.array[Q0.dofmap.list[:ncells, 0]] = np.broadcast_to(young, (ncells,))
+    nu.x.array[Q0.dofmap.list[:ncells, 0]] = np.broadcast_to(poisson, (ncells,))
+    W = fem.functionspace(msh, ("DG", degree, (2,)))
+    u, v = ufl.TrialFunction(W), ufl.TestFunction(W)
+    entities = fm.fractures.integration_entities.reshape(-1, 4)
+    cells = np.unique(entities[:, [0, 2]] if side == "mean" else entities[:, 0])
+    dx = ufl.Measure("dx", domain=msh, subdomain_data=[(1, cells.astype(np.int32))])
+    n = ufl.FacetNormal(msh)("+")
+    a = fem.form(ufl.inner(sigma(u, E, nu), epsilon(v)) * dx(1))
+    dG = fracture_measure(fm)(FRACTURE_TAG)
+    h = ufl.FacetArea(msh)("+")
+    b = fem.form(_traction_form(u, v, n, h, E, nu, side, beta_n0, beta_t0) * dG)
+    A = fem.assemble_matrix(a).to_scipy(ghosted=True).tocsr()
+    B = fem.assemble_matrix(b).to_scipy(ghosted=True).tocsr()
+    dofs = W.dofmap.list
+    rho = 0.0
+    for c in cells:
+        d = (2 * dofs[c][:, None] + np.arange(2)).ravel()
+        rho = max(rho, _cell_ratio(A[d][:, d].toarray(), B[d][:, d].toarray()))
+    return float(msh.comm.allreduce(rho, op=MPI.MAX))

@@ -1,0 +1,434 @@
+"""Coupled poromechanics (``physics: poromechanics``): Biot + contact + HFV flow, by fixed point.
+
+The quasi-static model of Beaude et al. (2023, §3), implicit Euler in time. Each step solves the
+fixed point ``p = g(p)`` on the matrix cell pressures and fracture face pressures
+``p = (p_m, p_f)``:
+
+* contact mechanics at the given pressures (semi-smooth Newton, warm-started): total stress
+  ``σ(u) - b p_m I``, fracture pressure ``p_f`` on both faces, contact conditions on the
+  effective traction ``T = (σ(u) - b p_m I) n⁺ + p_f n⁺``;
+* Darcy (HFV) at the resulting porosity ``φ = φ⁰ + b (div u - div u⁰) + (p_m - p⁰)/M`` and
+  aperture ``d_f = d₀ - [[u]]_n`` (conductivity ``d_f³/12`` by default).
+
+The fixed point is a PETSc SNES on ``F(p) = p - g(p)`` with options prefix ``coupling_``
+(``coupling.method``: Anderson by default, NGMRES, L-BFGS, a composite Picard/Anderson sweep,
+matrix-free Newton-Krylov, or plain Picard), stopped at ``|F| <= rtol |F₀|`` (1e-5, the paper's)
+or ``|F|/√N <= atol``. The initial state is the mechanical equilibrium under ``p⁰`` and the
+boundary data at ``t = 0``; ``u⁰`` and ``d(u⁰)`` are the references of porosity and aperture.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+
+import dolfinx_solver  # noqa: F401
+
+import numpy as np
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from poromech.errors import SolverError
+from poromech.flow.balance import compute_fluxes, mass_balance
+from poromech.flow.driver import flow_report, flow_state, restore_pressure
+from poromech.flow.output import FlowWriter
+from poromech.flow.problem import TimeStep
+from poromech.flow.setup import flow_properties, problem_from_scene, time_dependent
+from poromech.mesh import FracturedMesh
+from poromech.scene import Scene
+from poromech.simulation import MechanicsSimulation, scalar_row
+from poromech.stepping import StepResult
+from poromech.timing import Timer
+
+__all__ = ["METHOD_OPTIONS", "PoromechanicsSimulation"]
+
+log = logging.getLogger("poromech")
+
+#: PETSc defaults of each ``coupling.method`` (prefix ``coupling_``); ``{m}`` is the memory.
+METHOD_OPTIONS: dict[str, dict[str, object]] = {
+    "anderson": {"snes_type": "anderson", "snes_anderson_m": "{m}", "snes_anderson_beta": 1.0},
+    "ngmres": {"snes_type": "ngmres", "snes_ngmres_m": "{m}"},
+    "qn": {"snes_type": "qn", "snes_qn_type": "lbfgs", "snes_qn_m": "{m}",
+           "snes_linesearch_type": "basic", "snes_qn_scale_type": "none"},
+    "composite": {"snes_type": "composite", "snes_composite_type": "multiplicative",
+                  "snes_composite_sneses": "nrichardson,anderson",
+                  "sub_0_snes_linesearch_type": "basic", "sub_1_snes_anderson_m": "{m}"},
+    "newtonkrylov": {"snes_type": "newtonls", "snes_mf": "", "snes_linesearch_type": "basic",
+                     "ksp_type": "gmres", "pc_type": "none", "ksp_rtol": 1e-2,
+                     "ksp_max_it": 30},
+    "picard": {"snes_type": "nrichardson", "snes_linesearch_type": "basic"},
+}
+
+#: Smallest aperture, relative to d₀, kept when ``d₀ - [[u]]_n`` would close a face entirely
+#: (interpenetration within the contact tolerance); the faces clamped are counted.
+APERTURE_FLOOR = 1e-3
+
+
+def _owned_cells(fm: FracturedMesh) -> int:
+    return fm.msh.topology.index_map(2).size_local
+
+
+class PoromechanicsSimulation:
+    """The coupled problem of a scene as a :class:`~poromech.stepping.Physics` (collective).
+
+    Args:
+        scene: The scene (``physics: poromechanics``).
+        fm: The fractured mesh.
+        timer: Wall-time accounting.
+    """
+
+    def __init__(self, scene: Scene, fm: FracturedMesh, timer: Timer):
+        self.scene, self.fm, self.timer, self.comm = scene, fm, timer, fm.comm
+        self.mech = MechanicsSimulation(scene, fm, timer)
+        with timer.phase("flow_setup"):
+            self.flow = problem_from_scene(scene, fm)
+        self.model = self.mech.model
+        flow = scene.flow
+        self.biot = scene.material.biot
+        self.porosity0 = flow.porosity
+        self.nc, self.nf = _owned_cells(fm), len(fm.fractures.facets)
+        self._d0_varies = time_dependent(scene)
+        self.d0 = self.flow.properties.aperture.copy()
+        self.records: list[dict] = []
+        self.has_initial_output = True
+        self.writer: FlowWriter | None = None
+        self._build_snes()
+        self._stats = _Counters()
+        self._step: TimeStep | None = None
+        self.t, self.dt = 0.0, None
+        self.history: list[tuple[float, np.ndarray]] = []  # accepted (t, p) for extrapolation
+
+    # -- the fixed point -----------------------------------------------------------------------
+    def _build_snes(self) -> None:
+        comm, n = self.comm, self.nc + self.nf
+        self.P = PETSc.Vec().createMPI((n, PETSc.DECIDE), comm=comm)
+        self.R = self.P.duplicate()
+        self.N = self.P.getSize()
+        self._last_eval = self.P.duplicate()
+        snes = PETSc.SNES().create(comm)
+        snes.setOptionsPrefix("coupling_")
+        c = self.scene.coupling
+        merged = {k: (v.format(m=c.memory) if isinstance(v, str) else v)
+                  for k, v in METHOD_OPTIONS[c.method].items()}
+        merged.update({"snes_max_it": c.max_it, "snes_rtol": c.rtol, "snes_stol": 0.0,
+                       "snes_atol": c.atol * np.sqrt(self.N)})
+        merged.update(c.petsc)
+        opts = PETSc.Options()
+        pushed = [f"coupling_{k}" for k, v in merged.items()
+                  if v is not None and not opts.hasName(f"coupling_{k}")]
+        for key in pushed:  # options already in the database (command line) win
+            opts[key] = merged[key[len("coupling_"):]]
+        try:
+            snes.setFunction(self._residual, self.R)
+            snes.setFromOptions()
+            snes.setConvergenceTest(self._converged)
+            snes.setMonitor(self._monitor)
+        finally:
+            for key in pushed:
+                opts.delValue(key)
+        self.snes = snes
+        self._failure: str | None = None
+
+    def _split(self, x: PETSc.Vec) -> tuple[np.ndarray, np.ndarray]:
+        a = x.getArray(readonly=True)
+        return a[: self.nc], a[self.nc:]
+
+    def g(self, p_m: np.ndarray, p_f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """One evaluation of the fixed-point map: mechanics at ``p``, then Darcy (collective).
+
+        Returns:
+            The new ``(p_m, p_f)`` on the owned cells and fracture faces (Pa).
+        """
+        s = self._stats
+        s.evaluations += 1
+        t0 = time.perf_counter()
+        self.model.set_pressures(p_m, p_f)
+        rec = self.mech.solver.solve()
+        s.add_newton(rec)
+        self.timer.add("assembly", rec.time_assembly)
+        self.timer.add("linear_solve", rec.time_linear)
+        t1 = time.perf_counter()
+        s.mechanics_seconds += t1 - t0
+        if not rec.converged:
+            self._failure = (f"contact Newton did not converge inside the fixed point: "
+                             f"{rec.reason} after {rec.iterations} iterations; residual history "
+                             + ", ".join(f"{r:.3e}" for r in rec.residuals))
+            return p_m, p_f
+        self._update_flow()
+        try:
+            with self.timer.phase("flow_solve"):
+                lin = self.flow.solve(self.t, self._step)
+        except SolverError as err:
+            self._failure = f"Darcy solve failed inside the fixed point: {err}"
+            return p_m, p_f
+        s.darcy_iterations += lin.iterations
+        s.darcy_solves += 1
+        s.darcy_seconds += time.perf_counter() - t1
+        return self.flow.cell_pressure, self.flow.fracture_pressure
+
+    def _update_flow(self) -> None:
+        """Aperture and porosity from the current displacement, into the Darcy problem."""
+        jn = self.model.face_fields()[:, 0] if self.nf else np.empty(0)
+        d = self.d0 - jn
+        floor = APERTURE_FLOOR * self.d0
+        self._stats.clamped = int(self.comm.allreduce(int(np.count_nonzero(d < floor))))
+        self.flow.set_aperture(np.maximum(d, floor))
+        fixed = self.porosity0 + self.biot * (self.model.cell_divergence() - self.div0) \
+            - self.flow.properties.storage * self.p0_cells
+        self._step = TimeStep(self.dt, self.porosity_prev, fixed, self.aperture_prev) \
+            if self.dt is not None else None
+
+    def _residual(self, snes, x, f) -> None:
+        if self._failure is not None:
+            f.set(0.0)
+            return
+        p_m, p_f = self.g(*self._split(x))
+        out = f.getArray()
+        xa = x.getArray(readonly=True)
+        out[: self.nc] = xa[: self.nc] - p_m
+        out[self.nc:] = xa[self.nc:] - p_f
+        x.copy(self._last_eval)
+
+    def _converged(self, snes, it, norms):
+        xnorm, ynorm, fnorm = norms
+        rtol, atol, _, max_it = snes.getTolerances()
+        R = PETSc.SNES.ConvergedReason
+        if self.comm.allreduce(self._failure is not None, op=MPI.LOR):
+            return R.DIVERGED_FUNCTION_DOMAIN
+        if it == 0:
+            self._f0 = fnorm
+        if not np.isfinite(fnorm):
+            return R.DIVERGED_FUNCTION_NANORINF
+        if fnorm <= atol:
+            return R.CONVERGED_FNORM_ABS
+        if fnorm <= rtol * self._f0:
+            return R.CONVERGED_FNORM_RELATIVE
+        if it >= max_it:
+            return R.DIVERGED_MAX_IT
+        return R.ITERATING
+
+    def _monitor(self, snes, it, fnorm) -> None:
+        self._stats.residuals.append(float(fnorm))
+        log.debug("coupling_ %d: |p - g(p)| = %.3e", it, fnorm)
+
+    # -- Physics interface -----------------------------------------------------------------
+    def describe(self) -> dict:
+        """Discretization and sizes, for the summary."""
+        return {**self.mech.describe(), "flow_unknowns": self.flow.dofs.num_global,
+                "coupling_method": self.scene.coupling.method,
+                "coupling_unknowns": int(self.N)}
+
+    def initialize(self) -> dict:
+        """Mechanical equilibrium under ``p⁰`` at ``t = 0``: the reference state."""
+        flow, pb = self.scene.flow, self.flow
+        pb.set_pressure(flow.initial_pressure, 0.0)
+        self.p0_cells = pb.cell_pressure.copy()
+        self.model.set_time(0.0)
+        self.model.set_pressures(pb.cell_pressure, pb.fracture_pressure)
+        rec = self.mech.solver.solve()
+        if not rec.converged:
+            raise SolverError(
+                f"the initial mechanical equilibrium under p⁰ did not converge: {rec.reason} "
+                f"after {rec.iterations} iterations", rec.reason, rec.residuals, rec.as_dict())
+        self.div0 = self.model.cell_divergence()
+        jn = self.model.face_fields()[:, 0] if self.nf else np.empty(0)
+        self.aperture_prev = np.maximum(self.d0 - jn, APERTURE_FLOOR * self.d0)
+        pb.set_aperture(self.aperture_prev)
+        self.porosity_prev = np.full(self.nc, self.porosity0)
+        self._step = None
+        self.mech.accept(0.0)
+        self._accepted_p = pb.p.copy()
+        self.history = [(0.0, self._pressures())]
+        log.info("initial equilibrium under p0: %d Newton iterations", rec.iterations)
+        return {"iterations": rec.iterations, "reason": rec.reason}
+
+    def _pressures(self) -> np.ndarray:
+        return np.concatenate([self.flow.cell_pressure, self.flow.fracture_pressure])
+
+    def _guess(self, t: float) -> np.ndarray:
+        """Initial fixed-point iterate: the last pressures, linearly extrapolated in time."""
+        (t1, p1) = self.history[-1]
+        if not self.scene.coupling.extrapolate or len(self.history) < 2:
+            return p1
+        t0, p0 = self.history[-2]
+        return p1 + (t - t1) / (t1 - t0) * (p1 - p0)
+
+    def solve(self, t: float, dt: float | None) -> StepResult:
+        """The fixed point of the step ending at ``t``."""
+        self.t, self.dt = t, dt
+        if self._d0_varies:
+            self.d0 = flow_properties(self.scene, self.fm, self.flow.geom, t).aperture
+        self.model.set_time(t)
+        self._stats = _Counters()
+        self._failure = None
+        self.P.getArray()[:] = self._guess(t)
+        t0 = time.perf_counter()
+        self.snes.solve(None, self.P)
+        reason = self.snes.getConvergedReason()
+        self._sync_state()
+        s = self._stats
+        name = _REASONS.get(reason, str(reason))
+        record = s.record(name, reason > 0, self.snes.getIterationNumber(),
+                          self.comm.allreduce(time.perf_counter() - t0, op=MPI.MAX))
+        if reason > 0:
+            record["mass_balance"] = mass_balance(self.flow, compute_fluxes(self.flow), t,
+                                                  self._step)
+            return StepResult(True, record)
+        why = self._failure or f"{name} after {record['iterations']} iterations"
+        message = (f"the coupled fixed point did not converge at t = {t:g} s: {why}; "
+                   "|p - g(p)| history " + ", ".join(f"{r:.3e}" for r in s.residuals))
+        return StepResult(False, record, message, name, list(s.residuals))
+
+    def _sync_state(self) -> None:
+        """Make u and the Darcy state those of ``g`` at the final iterate (one more g if not)."""
+        if self._failure is not None:
+            return
+        self._last_eval.axpy(-1.0, self.P)
+        stale = self._last_eval.norm(PETSc.NormType.NORM_INFINITY) > 0.0
+        if stale:
+            self.g(*self._split(self.P))
+
+    def accept(self, t: float) -> None:
+        """The step's porosity, aperture and displacement become the references."""
+        self.mech.accept(t)
+        if self._step is not None:
+            self.porosity_prev = self.flow.porosity(self._step)
+        self.aperture_prev = self.flow.properties.aperture.copy()
+        self._accepted_p = self.flow.p.copy()
+        self.history = [*self.history[-1:], (t, self._pressures())]
+
+    def reject(self) -> None:
+        """Back to the last accepted state."""
+        self.mech.reject()
+        self.flow.p[:] = self._accepted_p
+        self.flow._write_guess()
+        self.flow.set_aperture(self.aperture_prev)
+
+    def progress(self, k: int, n: int, t: float, result: StepResult) -> str:
+        """One line per step: fixed-point and inner iteration counts."""
+        r = result.record
+        res = r["residuals"] or [float("nan")]
+        return (f"step {k + 1}/{n} t={t:g} s: {r['reason']} in {r['iterations']} it, "
+                f"{r['g_evaluations']} g evaluations (|p - g(p)| {res[0]:.2e} -> {res[-1]:.2e}); "
+                f"contact Newton {r['newton_iterations']} it, {r['factorizations']} "
+                f"factorizations; Darcy {r['darcy_iterations']} it")
+
+    # -- output ----------------------------------------------------------------------------
+    def open_output(self, outdir: Path, resume_until: float | None = None) -> None:
+        """Mechanics writers (with ``p_f`` and ``aperture`` on the fractures) and flow.xdmf."""
+        self.mech.open_output(outdir, resume_until, fracture_columns=("p_f", "aperture"))
+        if self.scene.output.xdmf:
+            with self.timer.phase("output"):
+                self.writer = FlowWriter(self.flow, Path(outdir), fracture_file=None,
+                                         resume_until=resume_until)
+
+    def write(self, t: float) -> None:
+        """Displacement, fracture fields with pressure and aperture, matrix flow fields."""
+        pb = self.flow
+        self.mech.write(t, {"p_f": pb.fracture_pressure, "aperture": pb.properties.aperture})
+        if self.writer is not None:
+            porosity = self.porosity_prev if self._step is None else pb.porosity(self._step)
+            with self.timer.phase("output"):
+                self.writer.write(t, compute_fluxes(pb), {
+                    "overpressure": pb.cell_pressure - self.p0_cells, "porosity": porosity})
+
+    def finish(self, summary: dict) -> None:
+        """Totals of the fixed point and the flow report."""
+        keys = ("g_evaluations", "iterations", "newton_iterations", "factorizations",
+                "darcy_iterations", "darcy_solves")
+        done = [r for r in self.records if "g_evaluations" in r]
+        summary["coupling"] = {
+            "method": self.scene.coupling.method,
+            "rtol": self.scene.coupling.rtol,
+            **{k: int(sum(r[k] for r in done)) for k in keys},
+            "mechanics_seconds": float(sum(r["mechanics_seconds"] for r in done)),
+            "darcy_seconds": float(sum(r["darcy_seconds"] for r in done)),
+        }
+        summary["flow"] = flow_report(self.flow, [])
+
+    # -- checkpoint ------------------------------------------------------------------------
+    def state(self) -> dict:
+        """Displacement, pressures, porosity, aperture and the extrapolation history."""
+        out = {**self.mech.state(), **flow_state(self.flow, self.porosity_prev,
+                                                  self.aperture_prev)}
+        cells = flow_state(self.flow, None, None)["p_cell"][0]
+        out["divergence0"] = (cells, self.div0)
+        if len(self.history) > 1:
+            t0, p0 = self.history[-2]
+            out["p_cell_previous"] = (cells, p0[: self.nc])
+            out["p_fracture_previous"] = (self.fm.fractures.index.astype(np.int64),
+                                          p0[self.nc:])
+            out["time_previous"] = scalar_row(self.comm, t0)
+        out["time_current"] = scalar_row(self.comm, self.history[-1][0])
+        return out
+
+    def restore(self, arrays: dict, t: float) -> None:
+        """Continue after the step ending at ``t`` (the initial state is not solved again)."""
+        pb, fm = self.flow, self.fm
+        pb.set_pressure(self.scene.flow.initial_pressure, 0.0)
+        self.p0_cells = pb.cell_pressure.copy()
+        self.mech.restore(arrays, t)
+        restore_pressure(pb, arrays)
+        cells = flow_state(pb, None, None)["p_cell"][0]
+        self.div0 = arrays["divergence0"][cells]
+        self.porosity_prev = arrays["porosity"][cells]
+        self.aperture_prev = arrays["aperture"][fm.fractures.index]
+        pb.set_aperture(self.aperture_prev)
+        self._accepted_p = pb.p.copy()
+        self.history = []
+        if "time_previous" in arrays:
+            previous = np.concatenate([arrays["p_cell_previous"][cells],
+                                       arrays["p_fracture_previous"][fm.fractures.index]])
+            self.history.append((float(arrays["time_previous"][0]), previous))
+        self.history.append((float(arrays["time_current"][0]), self._pressures()))
+
+    def close(self) -> None:
+        """Free the PETSc objects."""
+        for obj in (self.snes, self.P, self.R, self._last_eval):
+            obj.destroy()
+        self.flow.destroy()
+        self.mech.close()
+
+
+_REASONS = {v: k for k, v in vars(PETSc.SNES.ConvergedReason).items() if not k.startswith("_")}
+
+
+class _Counters:
+    """Work done in one step of the fixed point (identical on every rank)."""
+
+    def __init__(self) -> None:
+        self.evaluations = 0
+        self.newton = []
+        self.factorizations = 0
+        self.stale = 0
+        self.darcy_iterations = 0
+        self.darcy_solves = 0
+        self.mechanics_seconds = 0.0
+        self.darcy_seconds = 0.0
+        self.residuals: list[float] = []
+        self.clamped = 0
+
+    def add_newton(self, rec) -> None:
+        self.newton.append(rec.iterations)
+        self.factorizations += rec.factorizations
+        self.stale += rec.stale_solves
+
+    def record(self, reason: str, converged: bool, iterations: int, seconds: float) -> dict:
+        return {
+            "reason": reason,
+            "converged": converged,
+            "iterations": iterations,
+            "g_evaluations": self.evaluations,
+            "residuals": self.residuals,
+            "newton_iterations": int(sum(self.newton)),
+            "newton_per_evaluation": self.newton,
+            "factorizations": self.factorizations,
+            "stale_solves": self.stale,
+            "darcy_iterations": self.darcy_iterations,
+            "darcy_solves": self.darcy_solves,
+            "mechanics_seconds": self.mechanics_seconds,
+            "darcy_seconds": self.darcy_seconds,
+            "solve_seconds": seconds,
+            "clamped_apertures": self.clamped,
+        }

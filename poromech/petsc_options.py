@@ -1,0 +1,189 @@
+"""PETSc options given by the user: checked before meshing, unused ones reported after the run.
+
+Options reach PETSc from the command line (``-mech_snes_type newtonls``) and from the scene
+(``solver.petsc``, ``flow.petsc``, ``coupling.petsc``, without their prefix). Before meshing,
+:func:`check_petsc_options` refuses, in one line:
+
+* a command-line option without a solver prefix (:data:`PREFIXES`), unless it is one of PETSc's
+  global options (``-log_view``, ``-options_left``, ...; :data:`GLOBAL_OPTIONS`): it would set
+  nothing, since every poromech solver has a prefix;
+* a type that this PETSc build does not have (``*snes_type``, ``*ksp_type``, ``*pc_type``,
+  ``*snes_linesearch_type``, ``*pc_factor_mat_solver_type``): PETSc is asked by setting the
+  type on a throwaway object, so the answer is that of the linked library.
+
+After the run, :func:`report_unused_options` warns once about command-line options that no
+solver read (a misspelled name, or an option for a solver this scene does not build), as PETSc's
+``-options_left`` does.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping
+
+import dolfinx_solver  # noqa: F401  (MPI before petsc4py)
+
+from mpi4py import MPI
+from petsc4py import PETSc
+
+__all__ = [
+    "GLOBAL_OPTIONS",
+    "PREFIXES",
+    "PetscOptionError",
+    "check_petsc_options",
+    "report_unused_options",
+    "scene_options",
+    "unused_options",
+]
+
+log = logging.getLogger("poromech")
+
+#: Options prefixes of poromech's solvers (sub-prefixes such as ``mech_stale_`` start with one).
+PREFIXES = ("mech_", "flow_", "coupling_")
+
+#: PETSc options that belong to no solver (names, or name prefixes ending in ``_``).
+GLOBAL_OPTIONS = (
+    "help", "version", "info", "log_", "options_", "malloc", "memory_", "objects_", "on_error_",
+    "debugger", "start_in_debugger", "stop_for_debugger", "fp_trap", "no_signal_handler",
+    "check_pointer_intensity", "history", "citations", "skip_petscrc", "viewer_", "display",
+    "nox", "device_", "use_gpu_aware_mpi", "saws_", "mpiuni_",
+)
+
+#: Option name suffixes whose value is a PETSc type, with examples for the message.
+_TYPED = {
+    "snes_linesearch_type": ("line search", "basic, bt, l2, cp, nleqerr"),
+    "pc_factor_mat_solver_type": ("factorization package", "mumps, superlu_dist, petsc"),
+    "snes_type": ("SNES type", "newtonls, newtontr, python, ksponly, anderson, ngmres, qn"),
+    "ksp_type": ("KSP type", "preonly, cg, gmres, fgmres, bcgs, minres, richardson"),
+    "pc_type": ("PC type", "lu, cholesky, gamg, hypre, jacobi, ilu, bjacobi, none"),
+}
+
+
+class PetscOptionError(ValueError):
+    """A PETSc option that cannot be right; the message is one line."""
+
+
+def _has_type(kind: str, value: str) -> bool:
+    """Whether this PETSc build registers ``value`` as a type of ``kind`` (local)."""
+    cls = {"snes_type": PETSc.SNES, "ksp_type": PETSc.KSP, "pc_type": PETSc.PC,
+           "snes_linesearch_type": PETSc.SNESLineSearch}.get(kind)
+    if cls is not None:
+        obj = cls().create(PETSc.COMM_SELF)
+        try:
+            obj.setType(value)
+        except PETSc.Error:
+            return False
+        finally:
+            obj.destroy()
+        return True
+    return _has_factor_package(value)
+
+
+def _has_factor_package(value: str) -> bool:
+    """Whether an LU or Cholesky factorization of package ``value`` exists (local)."""
+    A = PETSc.Mat().createAIJ([1, 1], nnz=1, comm=PETSc.COMM_SELF)
+    A.setValue(0, 0, 1.0)
+    A.assemble()
+    try:
+        for factor in ("lu", "cholesky"):
+            ksp = PETSc.KSP().create(PETSc.COMM_SELF)
+            try:
+                ksp.setOperators(A)
+                ksp.setType("preonly")
+                ksp.getPC().setType(factor)
+                ksp.getPC().setFactorSolverType(value)
+                ksp.setUp()
+                return True
+            except PETSc.Error:
+                pass
+            finally:
+                ksp.destroy()
+        return False
+    finally:
+        A.destroy()
+
+
+def _check_type(name: str, value, where: str) -> None:
+    """Refuse a typed option whose value is not a registered type."""
+    for suffix, (what, examples) in _TYPED.items():
+        if name == suffix or name.endswith("_" + suffix):
+            if not isinstance(value, str) or not value:
+                raise PetscOptionError(f"{where} = {value!r} needs a {what} (e.g. {examples})")
+            if not _has_type(suffix, value):
+                raise PetscOptionError(f"{where} = {value!r} is not a {what} of this PETSc "
+                                       f"(e.g. {examples})")
+            return
+
+
+def _is_global(name: str) -> bool:
+    return any(name.startswith(g) if g.endswith("_") else name == g or name.startswith(g + "_")
+               for g in GLOBAL_OPTIONS)
+
+
+def scene_options(scene) -> dict[str, Mapping]:
+    """The scene's PETSc option tables by prefix (those of the sections the scene has)."""
+    out: dict[str, Mapping] = {"mech_": scene.solver.petsc}
+    if scene.flow is not None:
+        out["flow_"] = scene.flow.petsc
+    coupling = getattr(scene, "coupling", None)
+    if coupling is not None:
+        out["coupling_"] = coupling.petsc
+    return out
+
+
+def _scene_key(prefix: str) -> str:
+    return {"mech_": "solver.petsc", "flow_": "flow.petsc", "coupling_": "coupling.petsc"}[prefix]
+
+
+def check_petsc_options(cli_options: Mapping[str, str], scene=None) -> None:
+    """Check command-line and scene PETSc options before meshing (local, identical on all ranks).
+
+    Args:
+        cli_options: Command-line options, names without the dash.
+        scene: The validated scene, or None.
+
+    Raises:
+        PetscOptionError: With a one-line message naming the option, its value and what is
+            allowed.
+    """
+    for name, value in cli_options.items():
+        if not name.startswith(PREFIXES) and not _is_global(name):
+            raise PetscOptionError(
+                f"PETSc option '-{name}' has no solver prefix and sets nothing: give it to a "
+                f"solver (prefixes {', '.join(PREFIXES)}; e.g. -mech_{name}) or use a global "
+                "option such as -log_view"
+            )
+        _check_type(name, value, f"PETSc option '-{name}'")
+    if scene is None:
+        return
+    for prefix, table in scene_options(scene).items():
+        key = _scene_key(prefix)
+        for name, value in table.items():  # names were checked by the scene loader
+            if value is not None:
+                _check_type(name, value, f"scene key '{key}.{name}'")
+
+
+def unused_options(names: Mapping[str, str] | None = None) -> list[str]:
+    """Options in PETSc's database (or only ``names``) that no object has read (local).
+
+    Global options (``-log_view``, read at the end) are left out.
+    """
+    opts = PETSc.Options()
+    present = opts.getAll()
+    keys = present if names is None else [k for k in names if k in present]
+    return sorted(k for k in keys if not _is_global(k) and not opts.used(k))
+
+
+def report_unused_options(comm: MPI.Comm, names: Mapping[str, str] | None = None) -> list[str]:
+    """Warn once (rank 0) about options no solver used; return them (collective-safe, local).
+
+    Args:
+        comm: Communicator (rank 0 logs).
+        names: The options to consider (e.g. those of the command line); all when None.
+    """
+    unused = unused_options(names)
+    if unused and comm.rank == 0:
+        listed = ", ".join(f"-{k}" for k in unused)
+        log.warning("PETSc option(s) %s were not used (misspelled, or for a solver this scene "
+                    "does not build)", listed)
+    return unused

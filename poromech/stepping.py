@@ -1,0 +1,241 @@
+"""The one time-stepping layer of poromech: steps, failed-step policy, output cadence, checkpoints.
+
+Mechanics-only, flow-only and coupled runs all go through :func:`run_steps`; the physics sits
+behind the small :class:`Physics` interface, so the data flow is scene → mesh → models →
+(coupling) → output.
+
+For every step ``tⁿ⁻¹ → tⁿ`` the loop
+
+1. solves (``physics.solve(t, dt)``); when that fails, the state of ``tⁿ⁻¹`` is restored
+   (``physics.reject()``) and the step is retried as two halves, then quarters, ... up to
+   ``time.max_cuts`` times (sub-steps are solved and accepted but not written); when the last
+   cut fails, the run stops with :class:`~poromech.errors.SolverError` (exit status 3), every
+   output of the earlier steps being kept;
+2. writes the output of the step just solved (every ``output.every`` steps and the last one),
+   *before* accepting it, so that contact states and slip rates describe that step;
+3. accepts the step (``physics.accept(t)``: the solved state becomes the reference of the next
+   step, e.g. of the slip increment), then rewrites ``summary.json`` and the checkpoint
+   atomically.
+
+A SIGINT or SIGTERM stops the run at the next step boundary, with the completed steps written
+(:class:`Interrupted`, exit status 130 or 143); a second signal ends the process at once.
+"""
+
+from __future__ import annotations
+
+import logging
+import signal
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+from mpi4py import MPI
+
+from poromech.errors import SolverError
+from poromech.scene import Scene
+
+__all__ = [
+    "Interrupted",
+    "Physics",
+    "StepResult",
+    "run_steps",
+    "step_times",
+    "stop_signals",
+]
+
+log = logging.getLogger("poromech")
+
+
+@dataclass
+class StepResult:
+    """Outcome of one attempted solve (identical on every rank).
+
+    Attributes:
+        converged: Whether the solve converged.
+        record: JSON-ready details (iterations, residuals, counts, ...).
+        message: Why it failed (reason and residual history), for the error message.
+        reason: PETSc's converged reason of a failed solve.
+        history: Residual norms of a failed solve.
+    """
+
+    converged: bool
+    record: dict = field(default_factory=dict)
+    message: str = ""
+    reason: str = ""
+    history: list[float] = field(default_factory=list)
+
+
+class Physics(Protocol):
+    """What the time loop needs from a physics (every method collective)."""
+
+    def initialize(self) -> dict | None:
+        """Set up the state at the initial time; a record of the solve, or None."""
+
+    def solve(self, t: float, dt: float | None) -> StepResult:
+        """Solve the step ending at ``t`` of length ``dt`` (None: a static solve)."""
+
+    def write(self, t: float) -> None:
+        """Write the outputs of the state just solved (or the initial state)."""
+
+    def accept(self, t: float) -> None:
+        """Make the solved state the reference state of the next step."""
+
+    def reject(self) -> None:
+        """Restore the last accepted state (before a retry with a smaller step)."""
+
+    def progress(self, step: int, nsteps: int, t: float, result: StepResult) -> str:
+        """One line describing a converged step."""
+
+
+class Interrupted(RuntimeError):
+    """The run was stopped by a signal at a step boundary; ``signum`` tells which."""
+
+    def __init__(self, signum: int):
+        super().__init__(f"stopped by {signal.Signals(signum).name} after the last completed "
+                         "step; its outputs are complete")
+        self.signum = signum
+
+
+class _StopFlag:
+    """Signal handler that records the first SIGINT/SIGTERM and re-raises on the second."""
+
+    def __init__(self) -> None:
+        self.signum = 0
+        self._previous: dict[int, object] = {}
+
+    def __call__(self, signum, frame) -> None:
+        if self.signum:
+            signal.signal(signum, signal.SIG_DFL)
+            signal.raise_signal(signum)
+        self.signum = signum
+
+    def install(self) -> None:
+        for s in (signal.SIGINT, signal.SIGTERM):
+            self._previous[s] = signal.signal(s, self)
+
+    def restore(self) -> None:
+        for s, h in self._previous.items():
+            signal.signal(s, h)
+
+
+class stop_signals:
+    """Context manager catching SIGINT/SIGTERM for a clean stop at the next step boundary."""
+
+    def __enter__(self) -> _StopFlag:
+        self.flag = _StopFlag()
+        try:
+            self.flag.install()
+        except ValueError:  # not in the main thread: no handler, signals act as usual
+            pass
+        return self.flag
+
+    def __exit__(self, *exc) -> None:
+        self.flag.restore()
+
+
+def step_times(scene: Scene) -> list[float]:
+    """End times of the steps: ``[0]`` for a static scene, else the uniform or listed times."""
+    spec = scene.time
+    if spec is None:
+        return [0.0]
+    if spec.times:
+        return [float(t) for t in spec.times]
+    return [float(t) for t in np.linspace(0.0, spec.final, spec.steps + 1)[1:]]
+
+
+def _advance(physics: Physics, t0: float, t1: float, max_cuts: int,
+             static: bool) -> tuple[StepResult, list[dict]]:
+    """Solve from ``t0`` to ``t1``, cutting the step on failure (see the module docstring)."""
+    if static:
+        result = physics.solve(t1, None)
+        if not result.converged:
+            raise SolverError(result.message, result.reason, result.history, result.record)
+        return result, []
+    dt, cuts, attempts = t1 - t0, 0, []
+    while True:
+        t = t1 if t0 + dt >= t1 * (1 - 1e-12) else t0 + dt
+        result = physics.solve(t, t - t0)
+        if result.converged and t == t1:
+            return result, attempts
+        if result.converged:
+            attempts.append({"time": t, "converged": True, **_brief(result.record)})
+            physics.accept(t)
+            t0 = t
+            continue
+        attempts.append({"time": t, "converged": False, **_brief(result.record)})
+        physics.reject()
+        cuts += 1
+        if cuts > max_cuts:
+            raise SolverError(f"{result.message} (after {max_cuts} step cuts)", result.reason,
+                              result.history, {**result.record, "attempts": attempts})
+        dt *= 0.5
+        log.warning("step to t=%g s failed (%s); retrying with dt=%g s (cut %d of %d)",
+                    t, result.message.split(";")[0], dt, cuts, max_cuts)
+
+
+def _brief(record: dict) -> dict:
+    """The scalar entries of a record (for the list of attempts)."""
+    return {k: v for k, v in record.items() if isinstance(v, int | float | str | bool)}
+
+
+def run_steps(
+    physics: Physics,
+    scene: Scene,
+    comm: MPI.Comm,
+    records: list[dict],
+    on_step: Callable[[int, float], None],
+    start: int = 0,
+    write_initial: bool = False,
+    stop=None,
+) -> None:
+    """Run the time steps ``start, start+1, ...`` of a scene (collective).
+
+    Args:
+        physics: The physics (already initialized or restored).
+        scene: The scene (time stepping and output cadence).
+        comm: Communicator.
+        records: One record per completed step is appended here.
+        on_step: Called as ``on_step(k, t)`` after step ``k`` is accepted and recorded (summary
+            and checkpoint).
+        start: Index of the first step to solve (a restart continues after the last one done).
+        write_initial: Write the initial state at ``t = 0`` first.
+        stop: A flag object with an attribute ``signum`` (see :class:`stop_signals`).
+
+    Raises:
+        SolverError: A step failed after every allowed cut.
+        Interrupted: A stop signal arrived; the completed steps are written.
+    """
+    times = step_times(scene)
+    static = scene.time is None
+    every = scene.output.every
+    max_cuts = 0 if static else scene.time.max_cuts
+    if write_initial and start == 0:
+        physics.write(0.0)
+    t_prev = 0.0 if start == 0 else times[start - 1]
+    for k in range(start, len(times)):
+        _check_stop(comm, stop)
+        t = times[k]
+        t0 = time.perf_counter()
+        result, attempts = _advance(physics, t_prev, t, max_cuts, static)
+        if (k + 1) % every == 0 or k + 1 == len(times):
+            physics.write(t)
+        physics.accept(t)
+        wall = comm.allreduce(time.perf_counter() - t0, op=MPI.MAX)
+        entry = {"step": k + 1, "time": t, "wall_time": wall, **result.record}
+        if attempts:
+            entry["cuts"] = sum(not a["converged"] for a in attempts)
+            entry["attempts"] = attempts
+        records.append(entry)
+        log.info("%s, %.2f s", physics.progress(k, len(times), t, result), wall)
+        on_step(k, t)
+        t_prev = t
+
+
+def _check_stop(comm: MPI.Comm, stop) -> None:
+    """Raise :class:`Interrupted` on every rank when any rank received a stop signal."""
+    signum = 0 if stop is None else stop.signum
+    signum = comm.allreduce(signum, op=MPI.MAX)
+    if signum:
+        raise Interrupted(signum)

@@ -1,0 +1,89 @@
+"""The Python API of docs/api.md: load a scene with overrides, run it, read the results back;
+the study example (scripts/study_example.py) on a coarse mesh; ``import poromech`` first."""
+
+import csv
+import importlib.util
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from conftest import ROOT
+
+import poromech
+from poromech.config import ConfigError, load_scene, load_scene_and_raw
+from poromech.results import STATES, open_results, read_table
+from poromech.run import run_scene
+
+COARSE = ["mesh.size=0.5", "mesh.fracture_size=0.2", "mesh.tip_size=0.1"]
+
+
+def load_example():
+    spec = importlib.util.spec_from_file_location("study_example",
+                                                  ROOT / "scripts" / "study_example.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_study_example(tmp_path):
+    """Two friction coefficients: one slips as the exact solution says, one sticks."""
+    example = load_example()
+    example.main(["--values", "0.5", "3", "--out", str(tmp_path / "runs"), "--docs",
+                  str(tmp_path / "docs"), *(f"--set={s}" for s in COARSE)])
+    rows = list(csv.DictReader(open(tmp_path / "docs" / "friction_sweep.csv")))
+    assert [r["F"] for r in rows] == ["0.5", "3.0"]
+    assert all(r["status"] == "converged" for r in rows)
+    slip, stick = rows
+    assert int(slip["slip_faces"]) == int(slip["faces"]) and int(stick["slip_faces"]) == 0
+    assert float(slip["rel_l2_error"]) < 0.1
+    assert abs(float(slip["max_slip"]) / float(slip["max_slip_exact"]) - 1) < 0.1
+    assert float(stick["max_slip"]) < 1e-12
+    assert (tmp_path / "docs" / "friction_sweep.png").stat().st_size > 10_000
+
+
+def test_load_run_read(tmp_path):
+    scene, raw = load_scene_and_raw("flow_six_fractures", [
+        "mesh.size=0.25", "mesh.fracture_size=0.125", "time.steps=2", "output.every=1"])
+    assert scene.name == "flow_six_fractures" and scene.time.steps == 2
+    summary = run_scene(scene, tmp_path / "flow", raw=raw)
+    res = open_results(tmp_path / "flow")
+    assert res.summary == summary | {"wall_time": res.summary["wall_time"]}
+    assert res.series_names == ("flow", "fractures_flow")
+    assert res.times() == res.times("fractures_flow") == [0.0, 1000.0, 2000.0]
+    flow = res.series("flow")
+    p_m = flow.at(2000.0)["p_m"]
+    assert p_m.shape == (len(flow.cells),) and 1e5 <= p_m.min() < p_m.max() <= 2e5 * (1 + 1e-9)
+    assert res.probes == ("fracture_5", "y_0.5")
+    probe = res.probe("y_0.5")
+    assert probe["x"][0] == 0.0 and np.isnan(probe["p_f"]).any()
+    assert res.scene["name"] == "flow_six_fractures" and res.scene["time"]["steps"] == 2
+    with pytest.raises(FileNotFoundError, match="no series 'displacement'"):
+        res.series("displacement")
+    with pytest.raises(FileNotFoundError, match="not a poromech output directory"):
+        open_results(tmp_path)
+    with pytest.raises(ConfigError):
+        load_scene("flow_six_fractures", ["time.steps=0"])
+
+
+def test_fracture_table(tmp_path):
+    scene = load_scene("inclined_crack_slip", COARSE)
+    run_scene(scene, tmp_path / "crack")
+    res = open_results(tmp_path / "crack")
+    rows = res.fractures(time=0.0)
+    assert set(rows["state"]) <= set(STATES) and set(rows["fracture"]) == {"crack"}
+    assert rows["jump_t"].dtype == np.float64 and len(rows["s"]) == res.summary["mesh"][
+        "fracture_faces"]
+    assert read_table(tmp_path / "crack" / "fractures.csv").keys() == rows.keys()
+    assert res.scene is None  # run_scene stores the scene only when given raw
+
+
+def test_import_poromech_loads_mpi_first():
+    """``import poromech`` lets DOLFINx and petsc4py be imported next (a fresh interpreter)."""
+    code = ("import poromech, dolfinx; from petsc4py import PETSc; "
+            "print(dolfinx.__version__, PETSc.COMM_WORLD.size)")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.split()[1] == "1"
+    assert poromech.__version__

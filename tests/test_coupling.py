@@ -1,0 +1,221 @@
+"""Coupled poromechanics: Terzaghi's consolidation (rates), an injected fracture that opens and
+closes (mass conservation, contact states), restart and 1 rank vs 2 ranks."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from conftest import ROOT, mpirun
+from mpi4py import MPI
+
+from poromech import stepping
+from poromech.analytic import terzaghi_parameters, terzaghi_pressure, terzaghi_settlement
+from poromech.config import load_scene
+from poromech.run import run_scene
+from poromech.xdmf import read_series
+
+comm = MPI.COMM_WORLD
+TERZAGHI = ROOT / "configs" / "terzaghi.yaml"
+INJECTION = ROOT / "configs" / "injection.yaml"
+
+
+def cell_areas(points, cells):
+    x = points[cells]
+    e1, e2 = x[:, 1] - x[:, 0], x[:, 2] - x[:, 0]
+    return 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+
+
+def terzaghi_run(tmp_path, *overrides):
+    scene = load_scene(TERZAGHI, overrides)
+    out = tmp_path / "_".join(o.replace("=", "") for o in overrides)
+    summary = run_scene(scene, out)
+    return scene, out, summary
+
+
+def terzaghi_errors(scene, out, steps=None):
+    """Relative L² error of p and relative error of the settlement at the final time, against
+    the exact solution or (``steps``) the exact solution of the time-discrete problem."""
+    p = scene.parameters
+    c = terzaghi_parameters(p["E"], p["nu"], p["b"], p["M"], 1e-14, 1e-3, p["sigma0"])
+    flow = read_series(out, "flow")
+    x = flow.points[flow.cells].mean(axis=1)
+    area = cell_areas(flow.points, flow.cells)
+    t = flow.times[-1]
+    ph = flow.fields(-1)["p_m"]
+    pe = terzaghi_pressure(p["L"] - x[:, 1], t, p["L"], c["p_u"], c["c_v"], steps=steps)
+    err_p = np.sqrt(np.sum(area * (ph - pe) ** 2) / np.sum(area * pe**2))
+    u = read_series(out, "displacement")
+    top = np.isclose(u.points[:, 1], p["L"])
+    uy = u.fields(-1)["u"][top, 1].mean()
+    args = (p["L"], c["p_u"], c["c_v"], c["K_v"], p["b"], p["sigma0"])
+    settled = terzaghi_settlement(t, *args) - terzaghi_settlement(1e-12, *args)
+    err_u = abs(uy - terzaghi_settlement(t, *args, steps=steps)) / abs(settled)
+    return err_p, err_u, ph
+
+
+@pytest.mark.slow
+def test_terzaghi_time_order(tmp_path):
+    """Implicit Euler: pressure and settlement errors halve with the time step (order 1)."""
+    errors = []
+    for n in (5, 10, 20):
+        scene, out, summary = terzaghi_run(tmp_path, f"time.steps={n}")
+        assert summary["status"] == "converged"
+        errors.append(terzaghi_errors(scene, out)[:2])
+    errors = np.array(errors)
+    rates = np.log2(errors[:-1] / errors[1:])
+    assert np.all(rates > 0.85) and np.all(rates < 1.15), rates
+    assert errors[-1, 0] < 0.01 and errors[-1, 1] < 0.01
+
+
+@pytest.mark.slow
+def test_terzaghi_space_order(tmp_path):
+    """Against the exact solution of the time-discrete problem (4 implicit Euler steps), the
+    pressure and the settlement converge at order 2 under uniform refinement."""
+    errors = []
+    for m in (0, 1, 2):
+        scene, out, _ = terzaghi_run(tmp_path, "time.steps=4", "mesh.size=0.1",
+                                     f"mesh.refinement={m}")
+        errors.append(terzaghi_errors(scene, out, steps=4)[:2])
+    errors = np.array(errors)
+    rates = np.log2(errors[:-1] / errors[1:])
+    assert np.all(rates > 1.9) and np.all(rates < 2.2), (errors, rates)
+    assert errors[-1, 0] < 5e-5, errors
+
+
+def fluid_volume(out, t_index):
+    """Σ |K| φ_K + Σ |σ| d_σ of an output step (m² per unit depth)."""
+    flow = read_series(out, "flow")
+    frac = read_series(out, "fractures")
+    area = cell_areas(flow.points, flow.cells)
+    length = np.linalg.norm(np.diff(frac.points[frac.cells], axis=1)[:, 0], axis=1)
+    return (area @ flow.fields(t_index)["porosity"]
+            + length @ frac.fields(t_index)["aperture"])
+
+
+@pytest.mark.slow
+def test_injection_opens_closes_and_conserves_mass(tmp_path):
+    scene = load_scene(INJECTION)
+    out = tmp_path / "inj"
+    summary = run_scene(scene, out)
+    assert summary["status"] == "converged"
+    frac = read_series(out, "fractures")
+    states = [frac.fields(k)["state"] for k in range(len(frac.times))]
+    d0 = frac.fields(0)["aperture"]
+    assert np.all(states[0] > 0)  # closed at t = 0 under the confining stress
+    opened = [k for k, s in enumerate(states) if np.all(s == 0)]
+    assert opened and frac.fields(opened[0])["aperture"].max() > 10 * d0.max()
+    assert np.all(states[-1] > 0) and opened[-1] < len(states) - 1  # closed again
+    # fluid volume: the change equals injected minus drained volume, step by step
+    dt = scene.time.final / scene.time.steps
+    for k, rec in enumerate(summary["solves"], start=1):
+        mb = rec["mass_balance"]
+        assert mb["relative_residual"] < 1e-8
+        change = fluid_volume(out, k) - fluid_volume(out, k - 1)
+        assert change == pytest.approx(dt * (mb["sources"] - mb["outflow"]), rel=1e-7,
+                                       abs=1e-12 * dt * abs(mb["sources"]) + 1e-18)
+    totals = summary["coupling"]
+    assert totals["g_evaluations"] == sum(r["g_evaluations"] for r in summary["solves"])
+
+
+def test_restart_reproduces_the_uninterrupted_run(tmp_path, monkeypatch):
+    scene = load_scene(TERZAGHI, ["time.steps=4"])
+    full = run_scene(scene, tmp_path / "full")
+    real = stepping._check_stop
+    calls = []
+
+    def stop_before_third_step(comm, flag):
+        calls.append(1)
+        if len(calls) == 3:
+            raise stepping.Interrupted(15)
+        real(comm, flag)
+
+    part = tmp_path / "part"
+    monkeypatch.setattr(stepping, "_check_stop", stop_before_third_step)
+    with pytest.raises(stepping.Interrupted):
+        run_scene(scene, part)
+    summary = json.loads((part / "summary.json").read_text())
+    assert summary["completed_steps"] == 2 and summary["status"].startswith("interrupted")
+    monkeypatch.setattr(stepping, "_check_stop", real)
+    resumed = run_scene(scene, part, restart=True)
+    assert resumed["status"] == "converged" and len(resumed["solves"]) == 4
+    a, b = read_series(tmp_path / "full", "flow"), read_series(part, "flow")
+    assert a.times == b.times
+    pa, pb = a.fields(-1)["p_m"], b.fields(-1)["p_m"]
+    assert np.abs(pa - pb).max() <= 1e-6 * np.abs(pa).max()
+    ua = read_series(tmp_path / "full", "displacement").fields(-1)["u"]
+    ub = read_series(part, "displacement").fields(-1)["u"]
+    assert np.abs(ua - ub).max() <= 1e-6 * np.abs(ua).max()
+    assert full["coupling"]["g_evaluations"] == resumed["coupling"]["g_evaluations"]
+
+
+@pytest.mark.mpi
+def test_one_rank_equals_two_ranks(tmp_path):
+    """The coupled six-fracture scene (two loading steps) on 1 and 2 ranks: same fields and
+    iteration counts to solver tolerance (the files are written in rank-independent order)."""
+    args = ["run", str(ROOT / "configs" / "six_fractures.yaml"), "-q", "--set", "time.final=200",
+            "--set", "time.steps=2"]
+    out = {}
+    for n in (1, 2):
+        out[n] = tmp_path / f"n{n}"
+        cmd = [mpirun(), "-n", str(n), sys.executable, "-m", "poromech", *args, "-o", str(out[n])]
+        proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=900)
+        assert proc.returncode == 0, proc.stderr[-3000:]
+    s1, s2 = (json.loads((out[n] / "summary.json").read_text()) for n in (1, 2))
+    assert s2["mpi_ranks"] == 2
+    for a, b in zip(s1["solves"], s2["solves"], strict=True):
+        assert a["g_evaluations"] == b["g_evaluations"]
+        assert abs(a["newton_iterations"] - b["newton_iterations"]) <= 2
+    for stem, name in (("flow", "p_m"), ("fractures", "jump_n"), ("fractures", "p_f")):
+        f1, f2 = read_series(out[1], stem).fields(-1), read_series(out[2], stem).fields(-1)
+        assert np.abs(f1[name] - f2[name]).max() <= 1e-6 * np.abs(f1[name]).max(), (stem, name)
+    # displacement: compare cell means keyed by cell centroid (nodes on fractures repeat)
+    means = []
+    for n in (1, 2):
+        u = read_series(out[n], "displacement")
+        centroid = np.round(u.points[u.cells].mean(axis=1), 10)
+        order = np.lexsort(centroid.T)
+        means.append((centroid[order], u.fields(-1)["u"][u.cells].mean(axis=1)[order]))
+    assert np.array_equal(means[0][0], means[1][0])
+    d1, d2 = means[0][1], means[1][1]
+    assert np.abs(d1 - d2).max() <= 1e-6 * np.abs(d1).max()
+
+
+def test_only_what_a_scene_needs_is_built(tmp_path):
+    from poromech.coupling import PoromechanicsSimulation
+    from poromech.flow.driver import FlowSimulation
+    from poromech.run import build_mesh, make_simulation
+    from poromech.simulation import MechanicsSimulation
+    from poromech.timing import Timer
+
+    def build(path, *overrides):
+        scene = load_scene(path, overrides)
+        return make_simulation(scene, build_mesh(scene, comm), Timer())
+
+    sim = build(TERZAGHI)  # no fractures: no contact, no fracture flow unknowns
+    assert isinstance(sim, PoromechanicsSimulation)
+    assert sim.model.p_m is not None and sim.model.p_f is None and sim.model.faces is None
+    assert [f.name for f in sim.model.unknowns] == ["u"]
+    counts = sim.flow.dofs.counts
+    assert counts["fracture_faces"] == counts["nodes"] == counts["traces"] == 0
+    assert sim.N == counts["cells"]
+    assert np.all(sim.flow.properties.storage > 0)
+    sim.close()
+    sim = build(TERZAGHI, "material.biot=0")  # b = 0: no Biot term, no matrix pressure
+    assert sim.model.p_m is None
+    sim.close()
+    sim = build(TERZAGHI, "time=null")  # steady: no storage term
+    assert np.all(sim.flow.properties.storage == 0)
+    sim.close()
+    sim = build(INJECTION, "contact.friction=frictionless")
+    assert sim.model.p_f is not None and sim.model.avg.function_space.dofmap.index_map_bs == 2
+    sim.close()
+    mech = ROOT / "configs" / "six_fractures_mechanics.yaml"
+    sim = build(mech)  # mechanics only: no flow, no pressures
+    assert isinstance(sim, MechanicsSimulation) and not hasattr(sim, "flow")
+    assert sim.model.p_m is None and sim.model.p_f is None
+    sim.close()
+    sim = build(ROOT / "configs" / "flow_six_fractures.yaml")  # flow only: no mechanics
+    assert isinstance(sim, FlowSimulation) and not hasattr(sim, "model")
+    sim.close()

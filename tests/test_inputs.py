@@ -1,0 +1,480 @@
+"""Bad input is refused in one line (exit 2) before meshing, by class; and once under MPI.
+
+Most cases call ``poromech.cli.main`` in this process (it stops before meshing); the MPI class
+runs them all in one ``mpirun -n 2`` script and checks that each prints one line in total and
+ends both ranks with the same status.
+"""
+
+import dataclasses
+import json
+import subprocess
+import sys
+import time
+
+import pytest
+import yaml
+from conftest import ROOT, mechanics_scene, mpirun, run_parallel
+
+from poromech.cli import main
+from poromech.config import ConfigError, apply_overrides, load_scene, scene_from_dict
+from poromech.expressions import ExpressionError, compile_expression
+from poromech.outdir import LOCK_NAME, OutputDirError, output_directory
+from poromech.petsc_options import PetscOptionError, check_petsc_options
+
+POROMECH = [sys.executable, "-m", "poromech"]
+
+
+def flow_scene(**flow) -> dict:
+    """A small valid flow scene (unit square, one fracture reaching the right side)."""
+    return {
+        "name": "flow_test", "physics": "flow",
+        "geometry": {"domain": {"rectangle": [0.0, 0.0, 1.0, 1.0]},
+                     "fractures": [{"name": "f", "points": [[0.3, 0.5], [1.0, 0.5]]}]},
+        "mesh": {"size": 0.2},
+        "flow": {"permeability": [1.0e-12],
+                 "boundary_conditions": [{"boundary": "left", "pressure": 1.0e5},
+                                         {"boundary": "right", "pressure": 2.0e5}],
+                 **flow},
+    }
+
+
+def cli(capsys, *args) -> tuple[int, list[str]]:
+    """Run the command line in this process; the status and the lines of stderr."""
+    code = main([str(a) for a in args])
+    return code, capsys.readouterr().err.strip().splitlines()
+
+
+def refused(capsys, *args, fragments=()) -> str:
+    """Assert exit 2 with exactly one line containing the fragments; return it."""
+    code, lines = cli(capsys, *args)
+    assert code == 2, lines
+    assert len(lines) == 1, lines
+    for f in fragments:
+        assert f in lines[0], (f, lines[0])
+    assert "np.float64" not in lines[0] and "Traceback" not in lines[0]
+    return lines[0]
+
+
+def write_scene(path, raw) -> str:
+    path.write_text(yaml.safe_dump(raw))
+    return str(path)
+
+
+# -- scene files ---------------------------------------------------------------------------------
+@pytest.mark.parametrize(("content", "fragment"), [
+    (bytes(range(256)) * 4, "binary"),
+    ("name: café\n".encode("latin-1"), "not UTF-8"),
+    ("name: x\n".encode("utf-16"), "UTF-16"),
+])
+def test_scene_file_not_utf8_text(tmp_path, capsys, content, fragment):
+    bad = tmp_path / "bad.yaml"
+    bad.write_bytes(content)
+    refused(capsys, "validate", bad, fragments=[str(bad), fragment])
+
+
+def test_scene_file_is_a_directory_or_missing(tmp_path, capsys):
+    refused(capsys, "run", tmp_path, fragments=["is a directory"])
+    refused(capsys, "validate", tmp_path / "none.yaml", fragments=["does not exist"])
+
+
+# -- hostile YAML --------------------------------------------------------------------------------
+BILLION_LAUGHS = "a: &a [x, x, x, x, x, x, x, x, x, x]\n" + "".join(
+    f"{c}: &{c} [{', '.join([f'*{p}'] * 10)}]\n"
+    for p, c in zip("abcdefgh", "bcdefghi", strict=True))
+
+
+def test_nested_aliases_are_refused_before_any_copy(tmp_path, capsys):
+    bomb = tmp_path / "bomb.yaml"
+    bomb.write_text("name: bomb\n" + BILLION_LAUGHS)
+    t0 = time.perf_counter()
+    refused(capsys, "validate", bomb, fragments=["expands to more than", "aliases"])
+    assert time.perf_counter() - t0 < 5.0
+    loop = tmp_path / "loop.yaml"
+    loop.write_text("name: loop\nx: &x [1, *x]\n")
+    refused(capsys, "validate", loop, fragments=["recursive"])
+
+
+def test_key_given_twice(tmp_path, capsys):
+    twice = tmp_path / "twice.yaml"
+    twice.write_text(yaml.safe_dump(mechanics_scene()) + "degree: 1\n")
+    refused(capsys, "validate", twice, fragments=["'degree' is given twice", "line"])
+    with pytest.raises(ConfigError, match="given twice"):
+        apply_overrides(mechanics_scene(), ["time={final: 1, final: 2}"])
+
+
+def test_aliases_within_bounds_are_accepted(tmp_path):
+    raw = yaml.safe_dump(mechanics_scene())
+    raw = raw.replace("material:\n", "material: &mat\n")
+    path = tmp_path / "alias.yaml"
+    path.write_text(raw + "description: same\n")
+    load_scene(path)
+
+
+# -- expressions ---------------------------------------------------------------------------------
+@pytest.mark.parametrize(("source", "fragment"), [
+    ("min(x)", "'min' takes 2 arguments, not 1"),
+    ("x" + "+x" * 1000, "nested more than"),
+    ("x" * 20000, "characters"),
+    ("a.b(1)", "function 'a.b'"),
+])
+def test_malformed_expressions(source, fragment):
+    with pytest.raises(ExpressionError, match=fragment):
+        compile_expression(source)
+    with pytest.raises(ConfigError) as info:
+        scene_from_dict(mechanics_scene(material={"young": source, "poisson": 0.2}))
+    assert "material.young" in str(info.value) and "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize(("raw", "key"), [
+    (mechanics_scene(boundary_conditions=[
+        {"boundary": "bottom", "displacement": [0.0, 0.0]},
+        {"boundary": "top", "displacement": ["0.001/(x-x)", 0.0]}]),
+     "boundary_conditions.1.displacement.0"),
+    # singular only at the corner vertex (0, 1) of the top edge
+    (mechanics_scene(boundary_conditions=[
+        {"boundary": "bottom", "displacement": [0.0, 0.0]},
+        {"boundary": "top", "traction": ["1e6/x", 0.0]}]),
+     "boundary_conditions.1.traction.0"),
+    (mechanics_scene(fracture_pressure="1e6/(y-y)"), "fracture_pressure"),
+    (flow_scene(boundary_conditions=[{"boundary": "left", "pressure": "1e5/(x-x)"},
+                                     {"boundary": "right", "pressure": 2e5}]),
+     "flow.boundary_conditions.0.pressure"),
+    (flow_scene(aperture="where(x > 0.6, -1e-4, 1e-4)"), "flow.aperture"),
+])
+def test_data_not_finite_or_out_of_range_where_used(raw, key):
+    with pytest.raises(ConfigError) as info:
+        scene_from_dict(raw)
+    msg = str(info.value)
+    assert f"'{key}'" in msg and "x=" in msg and "\n" not in msg, msg
+
+
+def test_time_dependent_data_checked_at_every_step():
+    raw = mechanics_scene(time={"final": 4.0, "steps": 4})
+    raw["boundary_conditions"][1]["displacement"] = ["0.001/(t-3)", 0.0]
+    with pytest.raises(ConfigError, match=r"displacement\.0.*t=3"):
+        scene_from_dict(raw)
+
+
+def test_field_invalid_only_outside_a_nonconvex_domain_is_accepted():
+    raw = mechanics_scene()
+    raw["geometry"] = {"domain": {"polygon": [[0, 0], [2, 0], [2, 1], [1, 1], [1, 2], [0, 2]],
+                                  "boundary_names": {"bottom": [0], "top": [2, 4]}}}
+    raw["material"]["young"] = "where((x > 1.01) and (y > 1.01), -1, 1e9)"
+    raw["boundary_conditions"][1]["displacement"] = [0.0, -0.001]
+    scene_from_dict(raw)
+
+
+# -- overrides -----------------------------------------------------------------------------------
+def test_set_through_a_scalar(capsys):
+    refused(capsys, "validate", ROOT / "configs" / "sneddon.yaml",
+            "--set", "boundary_conditions.0.displacement.0.x=1",
+            fragments=["boundary_conditions.0.displacement.0", "not a mapping or list"])
+
+
+# -- PETSc options -------------------------------------------------------------------------------
+def test_petsc_options_checked_before_meshing(tmp_path, capsys):
+    out = tmp_path / "out"
+    refused(capsys, "run", "sneddon", "-o", out, "-mech_snes_type", "bogus",
+            fragments=["-mech_snes_type", "bogus", "newtonls"])
+    refused(capsys, "run", "sneddon", "-o", out, "--set", "solver.petsc.ksp_type=nonsense",
+            fragments=["solver.petsc.ksp_type", "nonsense", "KSP type"])
+    refused(capsys, "run", "sneddon", "-o", out, "-snes_type", "newtonls",
+            fragments=["-snes_type", "prefix", "-mech_snes_type"])
+    refused(capsys, "validate", "sneddon", "-mech_pc_factor_mat_solver_type", "nopackage",
+            fragments=["factorization package"])
+    assert not out.exists()  # nothing was created
+
+
+def test_petsc_option_checks():
+    check_petsc_options({"mech_snes_type": "newtonls", "mech_ksp_type": "gmres",
+                         "flow_pc_type": "gamg", "mech_pc_factor_mat_solver_type": "mumps",
+                         "mech_snes_linesearch_type": "bt", "log_view": "",
+                         "mech_stale_ksp_max_it": "5"})
+    with pytest.raises(PetscOptionError, match="needs a KSP type"):
+        check_petsc_options({"flow_ksp_type": ""})
+    with pytest.raises(ConfigError, match="without the mech_ prefix"):
+        scene_from_dict(mechanics_scene(solver={"petsc": {"mech_ksp_type": "cg"}}))
+
+
+# -- output directory ----------------------------------------------------------------------------
+def test_output_directory_paths(tmp_path, capsys):
+    afile = tmp_path / "file"
+    afile.write_text("x")
+    refused(capsys, "run", "sneddon", "-o", afile, fragments=["is a file"])
+    refused(capsys, "run", "sneddon", "-o", afile / "sub", fragments=["lies below the file"])
+    refused(capsys, "run", "sneddon", "-o", "/proc/poromech_out", fragments=["cannot be created"])
+    refused(capsys, "run", "sneddon", "-o", "/proc", fragments=["is not writable"])
+    for name in ("../x", "/abs", "", "."):
+        scene = write_scene(tmp_path / "s.yaml", {**mechanics_scene(), "name": name})
+        refused(capsys, "run", scene, fragments=["'name'", repr(name)])
+
+
+def test_output_directory_lock(tmp_path, capsys):
+    out = tmp_path / "busy"
+    with output_directory(out):
+        line = refused(capsys, "run", "sneddon", "-o", out, fragments=["in use", "pid"])
+        assert str(out) in line
+        with pytest.raises(OutputDirError, match="in use"):
+            with output_directory(out):
+                pass
+    with output_directory(out):  # released at the end of the first run
+        pass
+
+
+def test_stale_outputs_refused_or_cleared(tmp_path, capsys):
+    out = tmp_path / "old"
+    (out / "displacement_p2.bp").mkdir(parents=True)
+    (out / "displacement_p2.bp" / "data.0").write_text("x")
+    (out / "fractures_steps").mkdir()
+    for name in ("summary.json", "probe_a.csv", ".summary.json.part", "fractures.csv",
+                 "notes.txt", "my.yaml", "fractures_paper.pdf"):
+        (out / name).write_text("x")
+    refused(capsys, "run", "sneddon", "-o", out, fragments=["earlier run", "--overwrite"])
+    with output_directory(out, overwrite=True):
+        pass
+    kept = [LOCK_NAME, "fractures_paper.pdf", "my.yaml", "notes.txt"]
+    assert sorted(p.name for p in out.iterdir()) == kept
+    (out / "summary.json").write_text("x")
+    with output_directory(out, clear=False):  # a restart keeps its outputs
+        assert (out / "summary.json").exists()
+
+
+# -- resources -----------------------------------------------------------------------------------
+def test_meshes_too_large_for_memory(tmp_path, capsys):
+    refused(capsys, "run", "-o", tmp_path / "r", "--set", "mesh.refinement=7",
+            fragments=["mesh.refinement = 7", "cells", "GB", "available", "--force"])
+    refused(capsys, "validate", write_scene(tmp_path / "f.yaml", flow_scene()),
+            "--set", "mesh.size=1e-5", fragments=["mesh.size = 1e-05", "GB"])
+    assert not (tmp_path / "r").exists()
+    assert main(["validate", "six_fractures_mechanics", "--set", "mesh.refinement=7",
+                 "--force"]) == 0
+    assert "running anyway (--force)" in capsys.readouterr().out
+
+
+def test_cell_estimate_matches_gmsh():
+    from poromech.config import plane_geometry
+    from poromech.meshing import MeshSizes, generate_mesh
+    from poromech.resources import estimate_cells
+
+    scene = load_scene(None)
+    geo, m = plane_geometry(scene), scene.mesh
+    sizes = MeshSizes(m.size, m.fracture_size, m.fracture_size, 4 * m.size)
+    cells = len(generate_mesh(geo, sizes).cells)
+    est = estimate_cells(geo, sizes.size, sizes.fracture_size, sizes.tip_size, sizes.transition, 0)
+    assert 0.8 < est / cells < 1.2
+    assert estimate_cells(geo, sizes.size, sizes.fracture_size, sizes.tip_size,
+                          sizes.transition, 2) == pytest.approx(16 * est)
+
+
+def test_probes_bounded_and_warned_outside(caplog):
+    raw = flow_scene()
+    raw["probes"] = [{"name": "p", "start": [0, 0.5], "end": [1, 0.5], "samples": 3e9}]
+    with pytest.raises(ConfigError, match=r"probes\.0\.samples.*<= 100000"):
+        scene_from_dict(raw)
+    raw["probes"] = [{"name": "far", "start": [2, 2], "end": [3, 3]},
+                     {"name": "across", "start": [-1, 0.2], "end": [2, 0.2]}]
+    import logging
+    logger = logging.getLogger("poromech")
+    records = []
+    handler = logging.Handler()
+    handler.emit = records.append
+    logger.addHandler(handler)
+    try:
+        scene_from_dict(raw)
+    finally:
+        logger.removeHandler(handler)
+    warned = [r.getMessage() for r in records if r.levelno == logging.WARNING]
+    assert len(warned) == 1 and "'far'" in warned[0] and "outside the domain" in warned[0]
+
+
+# -- messages ------------------------------------------------------------------------------------
+def test_messages_show_plain_numbers_and_names():
+    raw = mechanics_scene()
+    raw["geometry"]["fractures"] = [{"points": [[0.5, 0.5], [3.0, 0.5]]}]
+    with pytest.raises(ConfigError, match=r"point \(3, 0\.5\) outside") as info:
+        scene_from_dict(raw)
+    assert "np." not in str(info.value)
+    with pytest.raises(ExpressionError, match="function 'x.sin'"):
+        compile_expression("x.sin(1)")
+
+
+# -- after meshing: every expression where the solvers evaluate it -------------------------------
+def _mesh(scene):
+    from mpi4py import MPI
+
+    from poromech.config import plane_geometry
+    from poromech.mesh import create_fractured_mesh
+    from poromech.meshing import MeshSizes, generate_mesh
+
+    geo, m = plane_geometry(scene), scene.mesh
+    f = m.fracture_size or m.size
+    arrays = generate_mesh(geo, MeshSizes(m.size, f, f, 4 * m.size))
+    return create_fractured_mesh(MPI.COMM_WORLD, geo, arrays), arrays
+
+
+def test_fields_checked_at_mesh_points():
+    from poromech.fieldcheck import validate_fields
+
+    scene = scene_from_dict(mechanics_scene(mesh={"size": 0.2}))
+    fm, arrays = _mesh(scene)
+    validate_fields(scene, fm)
+    # a Young's modulus negative in a tiny disc around one cell centroid: the pre-mesh grid
+    # misses it, the centroid check does not
+    c = [float(v) for v in arrays.x[arrays.cells[7]].mean(axis=0)]
+    young = compile_expression(f"where(hypot(x - {c[0]!r}, y - {c[1]!r}) < 1e-9, -1e9, 1e9)")
+    bad = dataclasses.replace(scene, material=dataclasses.replace(scene.material, young=young))
+    with pytest.raises(ConfigError, match=r"material\.young.*-1e\+09.*cell centre.*> 0"):
+        validate_fields(bad, fm)
+    # a boundary displacement singular at the midpoint of a top facet: a P2 node, not a P1 one
+    top = arrays.boundary_facets[arrays.boundary_edge == 2][0]
+    xm = float(arrays.x[top].mean(axis=0)[0])
+    bc = scene.boundary_conditions[1]
+    ux = compile_expression(f"0.001/(x - {xm!r})")
+    bcs = (scene.boundary_conditions[0],
+           dataclasses.replace(bc, displacement=(ux, bc.displacement[1])))
+    p2 = dataclasses.replace(scene, boundary_conditions=bcs)
+    with pytest.raises(ConfigError, match=r"boundary_conditions\.1\.displacement\.0.*finite"):
+        validate_fields(p2, fm)
+    validate_fields(dataclasses.replace(p2, degree=1), fm)
+
+
+def test_flow_fields_checked_at_mesh_points():
+    from poromech.fieldcheck import validate_fields
+
+    scene = scene_from_dict(flow_scene())
+    fm, arrays = _mesh(scene)
+    validate_fields(scene, fm)
+    mid = [float(v) for v in fm.fractures.midpoint[3]]
+    aperture = compile_expression(
+        f"where(hypot(x - {mid[0]!r}, y - {mid[1]!r}) < 1e-9, 0, 1e-4)")
+    bad = dataclasses.replace(scene, flow=dataclasses.replace(scene.flow, aperture=aperture))
+    with pytest.raises(ConfigError, match=r"flow\.aperture.*fracture face.*> 0"):
+        validate_fields(bad, fm)
+
+
+# -- MPI: every class under mpirun -n 2 prints one line and ends both ranks alike ----------------
+@pytest.mark.mpi
+def test_refusals_under_mpi(tmp_path):
+    binary = tmp_path / "binary.yaml"
+    binary.write_bytes(bytes(range(256)))
+    bomb = tmp_path / "bomb.yaml"
+    bomb.write_text("name: bomb\n" + BILLION_LAUGHS)
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    (tmp_path / "old").mkdir()
+    (tmp_path / "old" / "summary.json").write_text("{}")
+    cases = {
+        "binary": ["validate", binary],
+        "bomb": ["validate", bomb],
+        "expression": ["validate", "sneddon", "--set", "material.young=min(x)"],
+        "nan_bc": ["run", "sneddon", "-o", tmp_path / "n",
+                   "--set", "boundary_conditions.0.displacement.0=.nan"],
+        "set_scalar": ["validate", "sneddon", "--set", "degree.x=1"],
+        "petsc": ["run", "sneddon", "-o", tmp_path / "p", "-mech_ksp_type", "nonsense"],
+        "outdir": ["run", "sneddon", "-o", afile / "sub"],
+        "stale": ["run", "sneddon", "-o", tmp_path / "old"],
+        "memory": ["run", "sneddon", "-o", tmp_path / "m", "--set", "mesh.refinement=7"],
+        "usage": ["run", "--no-such-flag"],
+    }
+    result = run_parallel(f"""
+        import contextlib, io, json
+        import dolfinx_solver
+        from mpi4py import MPI
+        from poromech.cli import main
+        import poromech.cli
+        comm = MPI.COMM_WORLD
+        cases = {json.dumps({k: [str(a) for a in v] for k, v in cases.items()})}
+
+        def boom(args, petsc_opts, comm):
+            raise RuntimeError("the same bug on every rank")
+
+        poromech.cli._COMMANDS["scenes"] = boom
+        cases["bug"] = ["scenes"]
+        out = {{}}
+        for name, args in cases.items():
+            err = io.StringIO()
+            with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+                code = main(args)
+            out[name] = (comm.gather(code), comm.gather(err.getvalue().strip().splitlines()))
+        if comm.rank == 0:
+            res = {{k: {{"codes": c, "lines": sum(ls, [])}} for k, (c, ls) in out.items()}}
+            print(json.dumps(res))
+        """)
+    for name, r in result.items():
+        expected = 1 if name == "bug" else 2
+        assert r["codes"] == [expected, expected], (name, r)
+        assert len(r["lines"]) == 1, (name, r)
+    assert "RuntimeError: the same bug" in result["bug"]["lines"][0]
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("args", [["run", "{bad}"], ["run", "sneddon", "-o", "{out}",
+                                                     "-mech_snes_type", "bogus"]])
+def test_mpirun_exits_2_with_one_line(tmp_path, args):
+    bad = tmp_path / "bad.yaml"
+    bad.write_bytes(b"\x00\x01binary")
+    args = [a.format(bad=bad, out=tmp_path / "o") for a in args]
+    proc = subprocess.run([mpirun(), "-n", "2", *POROMECH, *args], capture_output=True,
+                          text=True, cwd=ROOT, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    lines = (proc.stdout + proc.stderr).strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in proc.stderr, lines
+
+
+@pytest.mark.mpi
+def test_error_on_one_rank_aborts_without_hang(tmp_path):
+    script = tmp_path / "one_rank.py"
+    script.write_text(
+        "import sys\n"
+        "import dolfinx_solver\n"
+        "from mpi4py import MPI\n"
+        "import poromech.cli as cli\n"
+        "cli.AGREE_TIMEOUT = 1.0\n"
+        "def command(args, petsc_opts, comm):\n"
+        "    if comm.rank == 1:\n"
+        "        raise OSError('disk gone on rank 1')\n"
+        "    comm.barrier()\n"
+        "cli._COMMANDS['scenes'] = command\n"
+        "sys.exit(cli.main(['scenes']))\n")
+    t0 = time.perf_counter()
+    proc = subprocess.run([mpirun(), "-n", "2", sys.executable, str(script)],
+                          capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert proc.returncode != 0 and time.perf_counter() - t0 < 60
+    assert proc.stderr.count("disk gone on rank 1") == 1, proc.stderr
+    assert "on rank 1 only" in proc.stderr
+
+
+@pytest.mark.mpi
+def test_fields_checked_at_mesh_points_under_mpi():
+    """The bad cell is owned by one rank; both raise the same one-line error."""
+    result = run_parallel(f"""
+        import dataclasses, json
+        import dolfinx_solver
+        from mpi4py import MPI
+        from poromech.config import ConfigError, plane_geometry, scene_from_dict
+        from poromech.expressions import compile_expression
+        from poromech.fieldcheck import validate_fields
+        from poromech.mesh import create_fractured_mesh
+        from poromech.meshing import MeshSizes, generate_mesh
+        comm = MPI.COMM_WORLD
+        scene = scene_from_dict({mechanics_scene(mesh={"size": 0.2})!r})
+        geo = plane_geometry(scene)
+        arrays = generate_mesh(geo, MeshSizes(0.2, 0.2, 0.2, 0.8)) if comm.rank == 0 else None
+        fm = create_fractured_mesh(comm, geo, arrays)
+        c = comm.bcast([float(v) for v in arrays.x[arrays.cells[7]].mean(axis=0)]
+                       if comm.rank == 0 else None)
+        young = compile_expression(f"where(hypot(x - {{c[0]!r}}, y - {{c[1]!r}}) < 1e-9, -1, 1)")
+        bad = dataclasses.replace(scene, material=dataclasses.replace(scene.material,
+                                                                      young=young))
+        validate_fields(scene, fm)
+        try:
+            validate_fields(bad, fm)
+            msg = None
+        except ConfigError as err:
+            msg = str(err)
+        msgs = comm.gather(msg)
+        if comm.rank == 0:
+            print(json.dumps({{"messages": msgs}}))
+        """)
+    a, b = result["messages"]
+    assert a == b and "material.young" in a and "cell centre" in a

@@ -1,0 +1,129 @@
+"""Crash-safe output: a killed, interrupted or disk-full run leaves readable files for every
+completed step, a valid summary.json, and can be continued with ``--restart``."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import h5py
+import meshio
+import numpy as np
+import pytest
+from conftest import ROOT
+
+from poromech.xdmf import read_series
+
+SCENE = str(ROOT / "configs" / "six_fractures_mechanics.yaml")
+POROMECH = [sys.executable, "-m", "poromech"]
+
+
+def start(out, *args):
+    return subprocess.Popen([*POROMECH, "run", SCENE, "-o", str(out), *args],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+
+
+def wait_for_steps(proc, out, steps, timeout=300):
+    """Wait until summary.json reports ``steps`` completed steps."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        assert proc.poll() is None, proc.communicate()
+        try:
+            done = json.loads((out / "summary.json").read_text()).get("completed_steps", 0)
+        except (FileNotFoundError, json.JSONDecodeError):
+            done = 0
+        if done >= steps:
+            return
+        time.sleep(0.05)
+    proc.kill()
+    pytest.fail("the run did not reach the wanted step in time")
+
+
+def check_readable(out, stems=("displacement", "fractures")) -> int:
+    """Every step listed in each index opens with h5py and meshio; returns the step count."""
+    counts = set()
+    for stem in stems:
+        series = read_series(out, stem)
+        for k in range(len(series.times)):
+            fields = series.fields(k)
+            assert fields and all(np.all(np.isfinite(v)) for v in fields.values())
+            with h5py.File(series.files[k]) as f:
+                assert set(f.keys()) == set(fields)
+        with meshio.xdmf.TimeSeriesReader(out / f"{stem}.xdmf") as reader:
+            reader.read_points_cells()
+            assert reader.num_steps == len(series.times)
+            for k in range(reader.num_steps):
+                reader.read_data(k)
+        counts.add(len(series.times))
+    assert len(counts) == 1, counts
+    return counts.pop()
+
+
+def test_kill_9_then_restart_reproduces_the_run(tmp_path):
+    full, part = tmp_path / "full", tmp_path / "part"
+    steps = ["--set", "time.steps=8"]
+    proc = start(part, *steps)
+    wait_for_steps(proc, part, 3)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.communicate()
+    summary = json.loads((part / "summary.json").read_text())
+    assert summary["status"] == "running" and summary["completed_steps"] >= 3
+    listed = check_readable(part)
+    assert listed >= summary["completed_steps"]
+    assert len(summary["solves"]) == summary["completed_steps"]
+    # continue the killed run, then run it uninterrupted: same fields
+    resumed = subprocess.run([*POROMECH, "run", "--restart", str(part), "-q"], cwd=ROOT,
+                             capture_output=True, text=True, timeout=600)
+    assert resumed.returncode == 0, resumed.stderr
+    proc = subprocess.run([*POROMECH, "run", SCENE, "-o", str(full), "-q", *steps], cwd=ROOT,
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    assert check_readable(part) == check_readable(full) == 8
+    a, b = (json.loads((d / "summary.json").read_text()) for d in (full, part))
+    assert b["status"] == "converged" and b["restarted_from"]["step"] >= 3
+    assert [r["iterations"] for r in a["solves"]] == [r["iterations"] for r in b["solves"]]
+    for stem, name in (("displacement", "u"), ("fractures", "jump_t")):
+        fa, fb = read_series(full, stem).fields(-1)[name], read_series(part, stem).fields(-1)[name]
+        assert np.abs(fa - fb).max() <= 1e-8 * np.abs(fa).max()
+    rows = (part / "fractures.csv").read_text().splitlines()
+    assert len(rows) == 1 + 8 * a["mesh"]["fracture_faces"]  # no step written twice
+
+
+@pytest.mark.parametrize("signum, code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+def test_signal_stops_cleanly_at_a_step_boundary(tmp_path, signum, code):
+    out = tmp_path / "run"
+    proc = start(out, "--set", "time.steps=40")
+    wait_for_steps(proc, out, 1)
+    proc.send_signal(signum)
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == code, err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and signal.Signals(signum).name in lines[0], err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"].startswith("interrupted")
+    assert check_readable(out) == summary["completed_steps"] < 40
+
+
+def test_disk_full_is_one_line_and_keeps_completed_steps(tmp_path):
+    """A file-size limit (set after MPI start-up) makes a write fail like a full disk."""
+    out = tmp_path / "full_disk"
+    code = textwrap.dedent(f"""
+        import resource, sys
+        import dolfinx_solver
+        from mpi4py import MPI
+        resource.setrlimit(resource.RLIMIT_FSIZE, (400_000, resource.RLIM_INFINITY))
+        from poromech.cli import main
+        sys.exit(main(["run", {SCENE!r}, "-o", {str(out)!r}]))
+    """)
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          cwd=ROOT, timeout=600)
+    assert proc.returncode == 1, proc.stderr
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "could not write" in lines[0] and "File too large" in lines[0]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"].startswith("error: OutputError")
+    assert check_readable(out) >= summary["completed_steps"] >= 1
+    assert not list(out.rglob(".*.part"))
