@@ -53,7 +53,9 @@ RUN --mount=type=secret,id=pip_cert \
     && /opt/venv/bin/pip install --quiet -c constraints.txt -r requirements.txt
 COPY . .
 RUN /opt/venv/bin/pip install --quiet --no-deps --no-build-isolation . \
-    && /opt/venv/bin/pip check
+    && /opt/venv/bin/pip check \
+    && cp scripts/dolfinx_mpi_first.pth \
+       "$(/opt/venv/bin/python -c 'import sysconfig; print(sysconfig.get_path("purelib"))')/"
 
 # ---- runtime: the venv, and the default scene's forms compiled into $XDG_CACHE_HOME/fenics
 FROM base AS runtime

@@ -32,13 +32,15 @@ $(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
 	$(PIP_INSTALL) pip setuptools
 	$(PIP_INSTALL) --no-build-isolation -e ".[$(EXTRAS)]"
+	cp scripts/dolfinx_mpi_first.pth \
+		"$$($(BIN)/python -c 'import sysconfig; print(sysconfig.get_path("purelib"))')/"
 	touch $(STAMP)
 
 check-cc:
 	$(CHECK_CC)
 
 run: $(STAMP)
-	$(BIN)/poromech run -o results/six_fractures_mechanics
+	$(BIN)/poromech run -o results/six_fractures --overwrite
 
 test: $(STAMP)
 	$(BIN)/python -m pytest

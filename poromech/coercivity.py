@@ -12,7 +12,7 @@ and ``ρ = max_K ρ_K < 1`` (``w_F = 1`` for the ``+`` cell when the traction is
 ``+`` side, ``1/2`` for each side for the mean traction). ``ρ`` is proportional to ``E/β⁰``, and
 grows with the degree, with flat cells and towards incompressibility. Below ``ρ < 1`` nothing is
 guaranteed: the discrete problem may have no solution or several, and Newton may converge to a
-wrong one (docs/mechanics.md, "Symmetric Nitsche").
+wrong one (docs/mechanics.md, "Nitsche parameters and symmetric Nitsche").
 """
 
 from __future__ import annotations
@@ -33,16 +33,22 @@ from poromech.mesh import FRACTURE_TAG, FracturedMesh, fracture_measure
 __all__ = ["symmetric_nitsche_ratio"]
 
 
-def _traction_form(u, v, n, h, young, poisson, side: str, beta_n0: float, beta_t0: float):
-    """``Σ w h (T_n(u) T_n(v)/β_n⁰ + T_τ(u) T_τ(v)/β_τ⁰)`` on the chosen side(s) (integrand)."""
+def _traction_form(u, v, n, h, young, poisson, side: str, beta_n0: float,
+                   beta_t0: float | None):
+    """``Σ w h (T_n(u) T_n(v)/β_n⁰ + T_τ(u) T_τ(v)/β_τ⁰)`` on the chosen side(s) (integrand).
+
+    No tangential term when ``beta_t0`` is None (frictionless).
+    """
     tau = tangent(n)
     sides = (("+", 1.0),) if side == "plus" else (("+", 0.5), ("-", 0.5))
     terms = []
     for s, w in sides:
         tu = ufl.dot(sigma(u, young, poisson)(s), n)
         tv = ufl.dot(sigma(v, young, poisson)(s), n)
-        terms.append(w * (ufl.dot(tu, n) * ufl.dot(tv, n) / beta_n0
-                          + ufl.dot(tu, tau) * ufl.dot(tv, tau) / beta_t0))
+        term = ufl.dot(tu, n) * ufl.dot(tv, n) / beta_n0
+        if beta_t0 is not None:
+            term += ufl.dot(tu, tau) * ufl.dot(tv, tau) / beta_t0
+        terms.append(w * term)
     return h * sum(terms[1:], terms[0])
 
 
@@ -55,7 +61,7 @@ def _cell_ratio(A: npt.NDArray[np.float64], B: npt.NDArray[np.float64]) -> float
 
 
 def symmetric_nitsche_ratio(fm: FracturedMesh, degree: int, young: npt.ArrayLike,
-                            poisson: npt.ArrayLike, beta_n0: float, beta_t0: float,
+                            poisson: npt.ArrayLike, beta_n0: float, beta_t0: float | None,
                             side: str = "plus") -> float:
     """The ratio ``ρ`` above: symmetric Nitsche is coercive on this mesh when ``ρ < 1``.
 
@@ -65,7 +71,7 @@ def symmetric_nitsche_ratio(fm: FracturedMesh, degree: int, young: npt.ArrayLike
         young: Young's modulus (Pa) per local cell (owned and ghost), or one value.
         poisson: Poisson's ratio per local cell, or one value.
         beta_n0: ``β_n⁰`` (Pa).
-        beta_t0: ``β_τ⁰`` (Pa).
+        beta_t0: ``β_τ⁰`` (Pa), or None without friction (no tangential Nitsche terms).
         side: ``"plus"`` or ``"mean"``, as ``contact.traction_side``.
 
     Returns:

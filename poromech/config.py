@@ -783,6 +783,10 @@ def _check_mechanics(scene: Scene, geo: PlaneGeometry) -> None:
         if getattr(scene, key) is None:
             raise ConfigError(f"scene key '{key}' is required for physics 'mechanics'")
     c = scene.contact
+    if c.slip_bound is not None and not c.slip_bound.is_uniform:
+        raise ConfigError(f"scene key 'contact.slip_bound' = {_fmt(c.slip_bound.source)} is not "
+                          "allowed: the Tresca slip bound must not depend on x or y (a number, "
+                          "or an expression in t)")
     if c.friction == "tresca" and c.slip_bound is None:
         raise ConfigError(
             "scene key 'contact.slip_bound' is required when contact.friction is tresca"

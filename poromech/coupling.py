@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import logging
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import dolfinx_solver  # noqa: F401
@@ -60,6 +61,9 @@ METHOD_OPTIONS: dict[str, dict[str, object]] = {
     "picard": {"snes_type": "nrichardson", "snes_linesearch_type": "basic"},
 }
 
+#: A fixed-point residual this many times its initial value ends the step as diverged.
+DIVERGENCE = 1e3
+
 #: Smallest aperture, relative to d₀, kept when ``d₀ - [[u]]_n`` would close a face entirely
 #: (interpenetration within the contact tolerance); the faces clamped are counted.
 APERTURE_FLOOR = 1e-3
@@ -81,6 +85,10 @@ class PoromechanicsSimulation:
     def __init__(self, scene: Scene, fm: FracturedMesh, timer: Timer):
         self.scene, self.fm, self.timer, self.comm = scene, fm, timer, fm.comm
         self.mech = MechanicsSimulation(scene, fm, timer)
+        if scene.coupling.method == "newtonkrylov":
+            # finite differences of g need u to respond to tiny changes of p: the contact Newton
+            # takes at least one step even when its residual is already below the tolerance
+            self.mech.solver.min_iterations = 1
         with timer.phase("flow_setup"):
             self.flow = problem_from_scene(scene, fm)
         self.model = self.mech.model
@@ -90,6 +98,11 @@ class PoromechanicsSimulation:
         self.nc, self.nf = _owned_cells(fm), len(fm.fractures.facets)
         self._d0_varies = time_dependent(scene)
         self.d0 = self.flow.properties.aperture.copy()
+        self.storage = self.flow.properties.storage.copy()  # 1/M, the physical storage
+        self.beta = self._fixed_stress(scene.coupling.stabilization)
+        if np.any(self.beta > 0):
+            self.flow.set_properties(replace(self.flow.properties,
+                                             storage=self.storage + self.beta))
         self.records: list[dict] = []
         self.has_initial_output = True
         self.writer: FlowWriter | None = None
@@ -155,7 +168,7 @@ class PoromechanicsSimulation:
                              f"{rec.reason} after {rec.iterations} iterations; residual history "
                              + ", ".join(f"{r:.3e}" for r in rec.residuals))
             return p_m, p_f
-        self._update_flow()
+        self._update_flow(p_m)
         try:
             with self.timer.phase("flow_solve"):
                 lin = self.flow.solve(self.t, self._step)
@@ -167,7 +180,23 @@ class PoromechanicsSimulation:
         s.darcy_seconds += time.perf_counter() - t1
         return self.flow.cell_pressure, self.flow.fracture_pressure
 
-    def _update_flow(self) -> None:
+    def _fixed_stress(self, factor: float) -> np.ndarray:
+        """``β_K = factor · b² / K_dr`` per owned cell (1/Pa), ``K_dr = λ + μ`` (plane strain).
+
+        Added to the storage of the Darcy solve inside ``g`` as ``β (p - p_in)``, with ``p_in``
+        the input pressure: ``g`` changes, its fixed point does not (Kim, Tchelepi & Juanes
+        2011, fixed-stress split).
+        """
+        if factor == 0 or self.biot == 0 or self.scene.time is None:  # steady: no storage
+            return np.zeros(self.nc)
+        x = self.flow.geom.centroid
+        young = self.scene.material.young(x[:, 0], x[:, 1], 0.0)
+        nu = self.scene.material.poisson(x[:, 0], x[:, 1], 0.0)
+        lam = young * nu / ((1 + nu) * (1 - 2 * nu))
+        mu = young / (2 * (1 + nu))
+        return factor * self.biot**2 / (lam + mu)
+
+    def _update_flow(self, p_in: np.ndarray | None = None) -> None:
         """Aperture and porosity from the current displacement, into the Darcy problem."""
         jn = self.model.face_fields()[:, 0] if self.nf else np.empty(0)
         d = self.d0 - jn
@@ -175,7 +204,9 @@ class PoromechanicsSimulation:
         self._stats.clamped = int(self.comm.allreduce(int(np.count_nonzero(d < floor))))
         self.flow.set_aperture(np.maximum(d, floor))
         fixed = self.porosity0 + self.biot * (self.model.cell_divergence() - self.div0) \
-            - self.flow.properties.storage * self.p0_cells
+            - self.storage * self.p0_cells
+        if p_in is not None:
+            fixed = fixed - self.beta * p_in
         self._step = TimeStep(self.dt, self.porosity_prev, fixed, self.aperture_prev) \
             if self.dt is not None else None
 
@@ -206,6 +237,8 @@ class PoromechanicsSimulation:
             return R.CONVERGED_FNORM_RELATIVE
         if it >= max_it:
             return R.DIVERGED_MAX_IT
+        if fnorm > DIVERGENCE * self._f0:
+            return R.DIVERGED_DTOL
         return R.ITERATING
 
     def _monitor(self, snes, it, fnorm) -> None:

@@ -171,10 +171,11 @@ class MechanicsModel:
         """Warn when θ = 1 is not guaranteed coercive: ``ρ >= 1`` (collective).
 
         ``ρ`` is a sufficient local bound, so runs with ``ρ`` somewhat above 1 may still be
-        right; docs/mechanics.md ("Symmetric Nitsche") shows where they go wrong.
+        right; docs/mechanics.md ("Nitsche parameters and symmetric Nitsche") shows where
+        they go wrong.
         """
         c = self.scene.contact
-        beta_t0 = self.beta0[1] if c.friction != "frictionless" else np.inf
+        beta_t0 = self.beta0[1] if c.friction != "frictionless" else None
         poisson = _cell_values(self.fm.msh, self.scene.material.poisson)
         rho = symmetric_nitsche_ratio(self.fm, self.scene.degree, young, poisson,
                                       self.beta0[0], beta_t0, c.traction_side)
@@ -446,21 +447,30 @@ class MechanicsModel:
         accepted too, they are extrapolated linearly (collective):
         ``x ← xₙ + (t - tₙ)/(tₙ - tₙ₋₁) (xₙ - xₙ₋₁)`` for ``u``, ``λ`` and the face averages.
         Points that slid in the last step then start the step sliding at the same rate, instead
-        of all sticking (zero slip increment) in the first Newton iteration. The unknowns at
-        construction count as the state at ``t = 0``.
+        of all sticking (zero slip increment) in the first Newton iteration. Zero unknowns at the
+        first call count as the state at ``t = 0``; unknowns that are not the last accepted ones
+        (a restored checkpoint, a second call in the same step) are kept, and the history
+        restarts after a restore.
         """
         for upd in self._updaters:
             upd(t)
+        comm = self.fm.comm
         if not hasattr(self, "_history"):
-            self._history = [(0.0, [f.x.array.copy() for f in self.unknowns])]
+            zero = comm.allreduce(all(not f.x.array.any() for f in self.unknowns), op=MPI.LAND)
+            self._history = [(0.0, [f.x.array.copy() for f in self.unknowns])] if zero else []
         self._t = t
+        if self._history:
+            last = self._history[-1][1]
+            same = all(np.array_equal(f.x.array, a)
+                       for f, a in zip(self.unknowns, last, strict=True))
+            if not comm.allreduce(same, op=MPI.LAND):
+                self._history = [] if t > self._history[-1][0] else self._history
+                return
         if self.extrapolate and len(self._history) == 2 and t > self._history[1][0]:
             (t0, x0), (t1, x1) = self._history
-            same = all(np.array_equal(f.x.array, a) for f, a in zip(self.unknowns, x1, strict=True))
-            if self.fm.comm.allreduce(same, op=MPI.LAND):
-                r = (t - t1) / (t1 - t0)
-                for f, a0, a1 in zip(self.unknowns, x0, x1, strict=True):
-                    f.x.array[:] = a1 + r * (a1 - a0)
+            r = (t - t1) / (t1 - t0)
+            for f, a0, a1 in zip(self.unknowns, x0, x1, strict=True):
+                f.x.array[:] = a1 + r * (a1 - a0)
 
     def accept_step(self) -> None:
         """Accept the solved state: slip reference of the next step and predictor point."""

@@ -59,6 +59,7 @@ OWNED_OUTPUTS: tuple[str, ...] = (
     "summary.json",
     "checkpoint*",
     "poromech_scene.yaml",
+    "plots",
 )
 
 #: The lock file held by the running process (never removed, never an output).

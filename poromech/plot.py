@@ -542,6 +542,8 @@ def plot_run(outdir: str | Path, time: float | None = None, scale: float | None 
     out = Path(out) if out is not None else res.path / "plots"
     name = str(res.summary.get("scene", ""))
     present = res.series_names
+    if time is None and present:  # the last time every series has (a killed run may differ)
+        time = min((res.times(s)[-1] for s in present if res.times(s)), default=None)
     written: list[Path] = []
     if "displacement" in present and "fractures" in present:
         disp, frac = res.series("displacement"), res.series("fractures")

@@ -400,6 +400,13 @@ class Coupling:
         default=5, metadata=doc("Anderson/NGMRES history (snes_anderson_m, snes_ngmres_m)", "",
                                 min=1, max=50)
     )
+    stabilization: float = field(
+        default=0.5,
+        metadata=doc("fixed-stress term β (p - p_in) in the Darcy solve of g, β = factor · b²/K_dr,"
+                     " K_dr = λ + μ; 0 is the paper's g, 0.5 the smallest factor with a proof of "
+                     "convergence for linear Biot (Both et al. 2017); the fixed point is the same",
+                     "", min=0, max=10),
+    )
     extrapolate: bool = field(
         default=True,
         metadata=doc("start each step from p extrapolated linearly from the two previous steps"),

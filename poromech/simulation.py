@@ -31,8 +31,11 @@ __all__ = ["MechanicsSimulation", "formulation_options"]
 
 log = logging.getLogger("poromech")
 
-#: Face fields written to ``fractures.xdmf``/``fractures.csv`` (besides ``state``).
+#: Face fields written to ``fractures.xdmf`` and ``fractures.csv`` (besides ``state``).
 WRITTEN_FACE_FIELDS = ("jump_n", "jump_t", "traction_n", "traction_t")
+#: Face fields written to ``fractures.xdmf`` only: the fractions of the face in contact and
+#: sliding (they differ from 0 and 1 only where pointwise Nitsche switches inside a face).
+XDMF_ONLY_FACE_FIELDS = ("contact_fraction", "slip_fraction")
 
 
 class _Values:
@@ -85,7 +88,7 @@ class MechanicsSimulation:
                         "unique and Newton may not converge; prefer degree 2 or stabilized_mixed")
         with timer.phase("setup"):
             self.model = model = MechanicsModel(fm, scene)
-            states = (lambda: model.states(model.face_fields())) if model.faces else None
+            states = model.active_set if model.faces else None
             self.solver = SemiSmoothNewton(
                 model.F, model.J, model.unknowns, model.bcs, prefix="mech_",
                 options={**formulation_options(model.params.formulation), **scene.solver.petsc},
@@ -103,13 +106,20 @@ class MechanicsSimulation:
 
     def describe(self) -> dict:
         """Formulation, degree and size, for the summary."""
-        return {
+        out = {
             "formulation": self.model.params.formulation,
             "friction": self.scene.contact.friction,
             "theta": self.scene.contact.theta,
             "degree": self.scene.degree,
             "dofs": self.model.dof_count(),
+            "beta_n": self.model.beta0[0],
+            "beta_t": self.model.beta0[1],
         }
+        if getattr(self.model, "coercivity_ratio", None) is not None:
+            out["coercivity_ratio"] = self.model.coercivity_ratio
+        if getattr(self.model, "warnings", None):
+            out["warnings"] = list(self.model.warnings)
+        return out
 
     # -- Physics interface -----------------------------------------------------------------
     def initialize(self) -> dict | None:
@@ -180,7 +190,8 @@ class MechanicsSimulation:
         from poromech.mechanics import FACE_FIELDS
 
         values = self.model.face_fields()
-        out = {name: values[:, FACE_FIELDS.index(name)] for name in WRITTEN_FACE_FIELDS}
+        out = {name: values[:, FACE_FIELDS.index(name)]
+               for name in (*WRITTEN_FACE_FIELDS, *XDMF_ONLY_FACE_FIELDS)}
         out["state"] = self.model.states(values)
         return out
 
@@ -195,7 +206,8 @@ class MechanicsSimulation:
             if "fractures" in self._series:
                 self._series["fractures"].write(t, cell_data=faces)
             if self._table is not None:
-                self._table.write(t, faces)
+                self._table.write(t, {k: v for k, v in faces.items()
+                                      if k not in XDMF_ONLY_FACE_FIELDS})
 
     # -- checkpoint ----------------------------------------------------------------------
     def _rows(self, f, values=None):

@@ -29,6 +29,8 @@ from poromech.timing import Timer
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "docs" / "mechanics"
+#: The mechanics-only six-fracture scene (the embedded default may be a coupled one).
+SCENE = ROOT / "configs" / "six_fractures_mechanics.yaml"
 
 
 def timed_run(scene, fm) -> tuple[MechanicsSimulation, float, list[dict]]:
@@ -46,7 +48,7 @@ def main() -> None:
     parser.add_argument("--refinement", type=int, default=3)
     args = parser.parse_args()
     comm = MPI.COMM_WORLD
-    base = load_scene(None, [f"mesh.refinement={args.refinement}", "output.xdmf=false"])
+    base = load_scene(SCENE, [f"mesh.refinement={args.refinement}", "output.xdmf=false"])
     t0 = time.perf_counter()
     fm = build_mesh(base, comm)
     t_mesh = time.perf_counter() - t0
@@ -54,14 +56,14 @@ def main() -> None:
     # the linear elastic reference: same space and loads, traction-free fractures; the first
     # solve includes MUMPS's symbolic analysis, the second refactorizes numerically only, as
     # every Newton iteration does
-    elastic = load_scene(None, [f"mesh.refinement={args.refinement}", "contact.formulation=none",
+    elastic = load_scene(SCENE, [f"mesh.refinement={args.refinement}", "contact.formulation=none",
                                 "time={final: 500.0, steps: 2}", "solver.reuse_jacobian=false"])
     sim, _, rec = timed_run(elastic, fm)
     t_first, t_elastic = rec[0]["wall_time"], rec[1]["wall_time"]
     dofs_elastic = sim.model.dof_count()
     sim.close()
     for formulation, stale in itertools.product(("nitsche", "mixed"), ("true", "false")):
-        scene = load_scene(None, [f"mesh.refinement={args.refinement}",
+        scene = load_scene(SCENE, [f"mesh.refinement={args.refinement}",
                                   f"contact.formulation={formulation}",
                                   f"solver.stale_factorization={stale}"])
         sim, t_solve, records = timed_run(scene, fm)

@@ -68,36 +68,53 @@ def _command(ranks: int, args: list[str]) -> list[str]:
     return [_mpirun(), "-n", str(ranks), *cmd] if ranks > 1 else cmd
 
 
-def run_case(m: int, formulation: str, degree: int, method: str = "anderson", ranks: int = 1,
-             again: bool = False, timeout: float = 7200) -> dict:
-    """Run one configuration (if not done yet); returns its summary with the process time."""
-    out = RUNS / tag(m, formulation, degree, method, ranks)
+def run_cli(out: Path, scene: Path, sets: list[str], ranks: int = 1, again: bool = False,
+            timeout: float = 7200, warm: bool = True) -> dict:
+    """Run ``poromech run scene --set ...`` into ``out`` (unless done); summary + process time.
+
+    With ``warm``, the configuration is first run for one short step so that the forms are
+    compiled before the timed run.
+    """
     record = out / "study.json"
     if record.exists() and not again:
         done = json.loads(record.read_text())
-        if done["status"] == "converged":
+        if done["status"] == "converged" or not done.get("retry", False):
             return done
-    sets = [f"mesh.refinement={m}", f"contact.formulation={formulation}", f"degree={degree}",
-            f"coupling.method={method}"]
-    args = ["run", str(SCENE), "-o", str(out), "--overwrite", "-q"]
+    args = ["run", str(scene), "-o", str(out), "--overwrite", "-q"]
     args += [a for s in sets for a in ("--set", s)]
-    warm = ["run", str(SCENE), "-o", str(RUNS / "warmup"), "--overwrite", "-q",
-            *[a for s in sets[1:] for a in ("--set", s)], "--set", "time.final=100",
-            "--set", "time.steps=1"]
-    subprocess.run(_command(1, warm), cwd=ROOT, capture_output=True, timeout=timeout)
+    if warm:
+        short = [s for s in sets if not s.startswith(("mesh.", "time"))]
+        subprocess.run(_command(1, ["run", str(scene), "-o", str(RUNS / "warmup"), "--overwrite",
+                                    "-q", *[a for s in short for a in ("--set", s)],
+                                    "--set", "time={times: [1.0]}"]),
+                       cwd=ROOT, capture_output=True, timeout=timeout)
     t0 = time.perf_counter()
-    proc = subprocess.run(_command(ranks, args), cwd=ROOT, capture_output=True, text=True,
-                          timeout=timeout)
+    try:
+        proc = subprocess.run(_command(ranks, args), cwd=ROOT, capture_output=True, text=True,
+                              timeout=timeout)
+        code, err = proc.returncode, proc.stderr
+    except subprocess.TimeoutExpired:
+        code, err = -1, f"timed out after {timeout:g} s"
     wall = time.perf_counter() - t0
     summary = json.loads((out / "summary.json").read_text()) if (out / "summary.json").exists() \
-        else {"status": f"failed: {proc.stderr.strip()[-300:]}"}
+        else {"status": f"failed: {err.strip()[-300:]}"}
     summary["process_seconds"] = wall
-    summary["exit_status"] = proc.returncode
+    summary["exit_status"] = code
+    summary["stderr"] = err.strip()[-2000:]
+    out.mkdir(parents=True, exist_ok=True)
     record.write_text(json.dumps(summary))
-    print(f"{tag(m, formulation, degree, method, ranks)}: {summary['status'][:60]}, "
-          f"{wall:.1f} s, {summary.get('coupling', {}).get('g_evaluations')} g evaluations",
-          flush=True)
+    print(f"{out.name}: {summary['status'][:70]}, {wall:.1f} s, "
+          f"{summary.get('coupling', {}).get('g_evaluations')} g evaluations", flush=True)
     return summary
+
+
+def run_case(m: int, formulation: str, degree: int, method: str = "anderson", ranks: int = 1,
+             again: bool = False, timeout: float = 7200) -> dict:
+    """Run one configuration of the six-fracture scene (if not done yet)."""
+    sets = [f"mesh.refinement={m}", f"contact.formulation={formulation}", f"degree={degree}",
+            f"coupling.method={method}"]
+    return run_cli(RUNS / tag(m, formulation, degree, method, ranks), SCENE, sets, ranks, again,
+                   timeout)
 
 
 def unit_costs(m: int, degree: int, ranks: int) -> dict:

@@ -237,6 +237,8 @@ def test_symmetric_nitsche_warns_below_its_coercivity_bound(caplog):
     assert model.coercivity_ratio < 1 and not model.warnings
     _, _, model = model_of("inclined_crack_slip", *low[:1], "contact.beta_t=4e10")
     assert not model.warnings
+    _, _, model = model_of("inclined_crack_frictionless", "contact.theta=1")
+    assert 0 < model.coercivity_ratio < 1  # no tangential terms without friction
 
 
 @pytest.mark.parametrize("degree", [1, 2])

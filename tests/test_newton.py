@@ -242,7 +242,13 @@ def test_predictor_uses_accepted_states_only():
     assert np.allclose(model.u.x.array, u2 + 2.0 * (u2 - u1))
     model.u.x.array[:] = u2 + 1.0
     model.set_time(250.0)
-    assert np.allclose(model.u.x.array, u2 + 1.0)
+    assert np.allclose(model.u.x.array, u2 + 1.0) and model._history == []
+    solver.destroy()
+    _, _, model, solver = model_and_solver("six_fractures_mechanics")
+    model.u.x.array[:] = u2  # a restored checkpoint: not the zero state of t = 0
+    run_steps(model, solver, [300.0])
+    model.set_time(400.0)
+    assert len(model._history) == 1 and np.allclose(model.u.x.array, model._history[0][1][0])
     solver.destroy()
 
 

@@ -43,7 +43,7 @@ def wait_for_steps(proc, out, steps, timeout=300):
 
 
 def check_readable(out, stems=("displacement", "fractures")) -> int:
-    """Every step listed in each index opens with h5py and meshio; returns the step count."""
+    """Every step listed in each index opens with h5py and meshio; returns the smallest count."""
     counts = set()
     for stem in stems:
         series = read_series(out, stem)
@@ -58,8 +58,9 @@ def check_readable(out, stems=("displacement", "fractures")) -> int:
             for k in range(reader.num_steps):
                 reader.read_data(k)
         counts.add(len(series.times))
-    assert len(counts) == 1, counts
-    return counts.pop()
+    # a kill between the writes of two series of one step leaves them one step apart
+    assert max(counts) - min(counts) <= 1, counts
+    return min(counts)
 
 
 def test_kill_9_then_restart_reproduces_the_run(tmp_path):
@@ -83,7 +84,9 @@ def test_kill_9_then_restart_reproduces_the_run(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert check_readable(part) == check_readable(full) == 8
     a, b = (json.loads((d / "summary.json").read_text()) for d in (full, part))
-    assert b["status"] == "converged" and b["restarted_from"]["step"] >= 3
+    # the checkpoint is written last in a step: a kill during it restarts one step earlier
+    assert b["status"] == "converged"
+    assert b["restarted_from"]["step"] >= summary["completed_steps"] - 1 >= 2
     assert [r["iterations"] for r in a["solves"]] == [r["iterations"] for r in b["solves"]]
     for stem, name in (("displacement", "u"), ("fractures", "jump_t")):
         fa, fb = read_series(full, stem).fields(-1)[name], read_series(part, stem).fields(-1)[name]
