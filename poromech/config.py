@@ -44,7 +44,7 @@ __all__ = [
 log = logging.getLogger("poromech")
 
 #: The embedded scene run by ``poromech run`` without a scene file.
-DEFAULT_SCENE = "six_fractures_mechanics.yaml"
+DEFAULT_SCENE = "six_fractures.yaml"
 
 RECTANGLE_EDGES = ("bottom", "right", "top", "left")
 

@@ -103,6 +103,7 @@ class NewtonRecord:
     linear_iterations: int = 0
     factorizations: int = 0
     stale_solves: int = 0
+    jacobian_reuses: int = 0
     residual_evaluations: int = 0
     time_assembly: float = 0.0
     time_linear: float = 0.0
@@ -193,6 +194,9 @@ class SemiSmoothNewton:
         self.min_iterations = 0
         self._forced_reason = None
         self._last_states = None
+        self._jacobian_states = None  # active set of the assembled Jacobian
+        self.states_determine_jacobian = False
+        self._costs: dict[str, float] = {}  # seconds of a refactorization, of a stale solve
         self.prefix = prefix
         self.snes = self._create_snes(prefix, options or {})
         self.record = NewtonRecord()
@@ -249,13 +253,30 @@ class SemiSmoothNewton:
         self.record.time_assembly += time.perf_counter() - t0
 
     def _jacobian(self, snes, x, A, P) -> None:
+        """Assemble the Jacobian, unless the active set is that of the assembled one.
+
+        With :attr:`states_determine_jacobian` (set by the owner when no coefficient of the
+        Jacobian changes in time), the Jacobian is a function of the contact branches only, so
+        an unchanged active set (the codes of ``states``) means an unchanged matrix: this saves
+        the assembly in the many solves of a coupled run that start in the last active set.
+        """
+        if self.states_determine_jacobian and self._same_states(self._jacobian_states):
+            self.record.jacobian_reuses += 1
+            return
         t0 = time.perf_counter()
         dolfinx.la.petsc._ghost_update(x, PETSc.InsertMode.INSERT, PETSc.ScatterMode.FORWARD)
         assign(x, self.u)
         A.zeroEntries()
         dolfinx.fem.petsc.assemble_matrix(A, self.J, self.bcs, diag=1.0)
         A.assemble()
+        self._jacobian_states = None if self._last_states is None else self._last_states.copy()
         self.record.time_assembly += time.perf_counter() - t0
+
+    def _same_states(self, reference) -> bool:
+        """Whether the current active set equals ``reference`` on every rank (collective)."""
+        same = (reference is not None and self._last_states is not None
+                and np.array_equal(reference, self._last_states))
+        return bool(self.comm.allreduce(same, op=MPI.LAND))
 
     def jacobian_unchanged(self) -> bool:
         """True when the Jacobian equals the one last factorized (collective)."""
@@ -394,20 +415,39 @@ class _Step:
             return ksp.getConvergedReason() > 0
         changes = s.record.active_set_changes[-1] if s.record.active_set_changes else None
         few = changes is not None and changes <= max(8, s._num_points // 50)
-        if s.stale_factorization and has_factor and few and _is_direct(ksp):
+        if s.stale_factorization and has_factor and few and _is_direct(ksp) and self._stale_pays():
             ksp.getPC().setReusePreconditioner(True)  # keep the old factors when applied
             stale = s._stale_ksp
+            t0 = time.perf_counter()
             stale.solve(F, Y)
+            self._cost("stale", t0)
             s.record.linear_iterations += stale.getIterationNumber()
             if stale.getConvergedReason() > 0:
                 s.record.stale_solves += 1
                 return True
         ksp.setOperators(s.A, s.A)
         ksp.getPC().setReusePreconditioner(False)
+        t0 = time.perf_counter()
         ksp.solve(F, Y)
+        self._cost("factor", t0)
         s.record.factorizations += 1
         s.factorized()
         return ksp.getConvergedReason() > 0
+
+    def _cost(self, kind: str, t0: float) -> None:
+        """Running mean (weight 1/2) of the seconds of a stale solve or a refactorization."""
+        seconds = self.s.comm.allreduce(time.perf_counter() - t0, op=MPI.MAX)
+        old = self.s._costs.get(kind)
+        self.s._costs[kind] = seconds if old is None else 0.5 * (old + seconds)
+
+    def _stale_pays(self) -> bool:
+        """Whether to try a stale GMRES solve: while it has been cheaper than a refactorization.
+
+        Also while either cost is unknown. On small meshes a factorization costs less than the
+        ~10 GMRES iterations of a stale solve, on large ones far more.
+        """
+        c = self.s._costs
+        return "stale" not in c or "factor" not in c or c["stale"] < c["factor"]
 
     def _norm_at(self, snes, X, Y, alpha: float) -> float:
         s = self.s

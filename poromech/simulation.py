@@ -98,6 +98,11 @@ class MechanicsSimulation:
                 stale_factorization=scene.solver.stale_factorization and not singular,
                 states=states,
             )
+        # only Young's modulus and Poisson's ratio enter the Jacobian besides the contact
+        # branches: while they are constant in time, an unchanged active set reuses it
+        material = scene.material
+        self.solver.states_determine_jacobian = not (
+            material.young.depends_on_time or material.poisson.depends_on_time)
         self.records: list[dict] = []
         self.has_initial_output = False
         self._saved = [f.x.array.copy() for f in model.unknowns]

@@ -20,28 +20,37 @@ def run(args, cwd=ROOT, timeout=600):
 
 
 def test_default_scene_outputs(tmp_path):
+    """The default scene is the paper's coupled six-fracture scene; two steps of T/2."""
     out = tmp_path / "out"
     proc = run(["run", "-o", str(out), "--set", "time.steps=2"])
     assert proc.returncode == 0, proc.stderr
     for name in ("displacement.xdmf", "displacement.h5", "fractures.xdmf", "fractures.h5",
-                 "fractures.csv", "summary.json"):
+                 "fractures.csv", "flow.xdmf", "flow.h5", "summary.json", "checkpoint.h5",
+                 "poromech_scene.yaml"):
         assert (out / name).exists(), name
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["scene"] == "six_fractures_mechanics" and summary["status"] == "converged"
+    assert summary["scene"] == "six_fractures" and summary["status"] == "converged"
+    assert summary["physics"] == "poromechanics" and summary["completed_steps"] == 2
     assert summary["formulation"] == "nitsche" and summary["degree"] == 2
     assert summary["mpi_ranks"] == 1 and summary["dofs"] > 10000
+    assert summary["initial"]["reason"].startswith("CONVERGED")
     assert len(summary["solves"]) == 2
     for s in summary["solves"]:
         assert s["converged"] and s["reason"].startswith("CONVERGED")
-        assert s["iterations"] == len(s["residuals"]) - 1 == len(s["active_set_changes"])
+        assert s["g_evaluations"] == len(s["residuals"]) == len(s["newton_per_evaluation"])
+        assert s["residuals"][-1] <= 1e-5 * s["residuals"][0]
+        assert s["mass_balance"]["relative_residual"] < 1e-8
+    totals = summary["coupling"]
+    assert totals["g_evaluations"] == sum(s["g_evaluations"] for s in summary["solves"])
     assert {"mesh", "setup", "assembly", "linear_solve", "output", "total"} <= set(
         summary["wall_time"])
     rows = list(csv.reader(open(out / "fractures.csv")))
-    assert tuple(rows[0]) == CSV_COLUMNS
+    assert tuple(rows[0]) == (*CSV_COLUMNS, "p_f", "aperture")
     faces = summary["mesh"]["fracture_faces"]
-    assert len(rows) == 1 + 2 * faces
+    assert len(rows) == 1 + 3 * faces  # t = 0 (the initial equilibrium), T/2, T
     assert {r[9] for r in rows[1:]} <= {"open", "stick", "slip"}
     assert {r[1] for r in rows[1:]} == {"1", "2", "3", "4", "5", "6"}
+    assert all(float(r[11]) > 0 for r in rows[1:])  # apertures
     # the duplicated-node output mesh has more points than the connected mesh has vertices
     with h5py.File(out / "displacement.h5") as f:
         points = f["mesh/points"].shape[0]
@@ -49,7 +58,10 @@ def test_default_scene_outputs(tmp_path):
     with h5py.File(steps[-1]) as f:
         u = np.asarray(f["u"])
     assert points > summary["mesh"]["vertices"]
-    assert len(steps) == 2 and np.all(np.isfinite(u)) and np.abs(u).max() > 1e-3
+    assert len(steps) == 3 and np.all(np.isfinite(u)) and np.abs(u).max() > 1e-3
+    flow = sorted((out / "flow_steps").glob("*.h5"))
+    with h5py.File(flow[-1]) as f:
+        assert {"p_m", "u_m", "overpressure", "porosity"} <= set(f)
     assert "poromech" in proc.stdout and "step 2/2" in proc.stdout
 
 
