@@ -291,12 +291,15 @@ def active_set_code(fk: FractureKinematics, p: ContactParameters, u, lam=None, a
     ``c_n = 1`` on the contact branch of ``[P_n]_R-``, ``c_τ`` the branch of ``[P_τ]_S`` (0
     stick, 1 slip forwards, 2 backwards; see :func:`~poromech.forms.fracture.ball_branch`). The
     comparisons are those of the residual, so the Jacobian changes exactly where a code does.
-    With Coulomb friction ``c_τ`` counts only on the contact branch: on the open branch
-    ``S = 0`` and every tangential branch has the same (zero) derivative.
+    With Coulomb friction on the open branch ``S = 0``: both slip branches have the same
+    (zero) derivative and share ``c_τ = 0``, but the tie ``P_τ = 0`` (a fracture at rest, the
+    usual initial iterate) takes the stick derivative and gets its own ``c_τ = 3``.
     """
     pn, pt, s = complementarity_arguments(fk, p, u, lam, avg)
     cn = ufl.conditional(contact_branch(pn), 1.0, 0.0)
     if not p.tangential:
         return cn
     ct = ball_branch(pt, s)
-    return cn + 2.0 * (cn * ct if p.friction == "coulomb" else ct)
+    if p.friction == "coulomb":
+        ct = cn * ct + (1.0 - cn) * ufl.conditional(ufl.eq(ct, 0.0), 3.0, 0.0)
+    return cn + 2.0 * ct

@@ -87,3 +87,24 @@ def mechanics_scene(**overrides) -> dict:
             node = node[p]
         node[parts[-1]] = value
     return scene
+
+
+def load_script(name: str):
+    """Import ``scripts/<name>.py`` as a module (the scripts are not a package)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(name, ROOT / "scripts" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def config_error(raw) -> str:
+    """The one-line ConfigError message a raw scene mapping is refused with."""
+    from poromech.config import ConfigError, scene_from_dict
+
+    with pytest.raises(ConfigError) as info:
+        scene_from_dict(raw)
+    msg = str(info.value)
+    assert "\n" not in msg
+    return msg

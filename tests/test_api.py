@@ -2,13 +2,12 @@
 the study example (scripts/study_example.py) on a coarse mesh; ``import poromech`` first."""
 
 import csv
-import importlib.util
 import subprocess
 import sys
 
 import numpy as np
 import pytest
-from conftest import ROOT
+from conftest import load_script
 
 import poromech
 from poromech.config import ConfigError, load_scene, load_scene_and_raw
@@ -19,11 +18,7 @@ COARSE = ["mesh.size=0.5", "mesh.fracture_size=0.2", "mesh.tip_size=0.1"]
 
 
 def load_example():
-    spec = importlib.util.spec_from_file_location("study_example",
-                                                  ROOT / "scripts" / "study_example.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("study_example")
 
 
 def test_study_example(tmp_path):

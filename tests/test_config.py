@@ -6,7 +6,7 @@ import sys
 import numpy as np
 import pytest
 import yaml
-from conftest import ROOT, mechanics_scene
+from conftest import ROOT, config_error, load_script, mechanics_scene
 
 from poromech.config import (
     ConfigError,
@@ -19,11 +19,7 @@ from poromech.expressions import ExpressionError, compile_expression
 
 
 def _error(raw) -> str:
-    with pytest.raises(ConfigError) as info:
-        scene_from_dict(raw)
-    msg = str(info.value)
-    assert "\n" not in msg
-    return msg
+    return config_error(raw)
 
 
 @pytest.mark.parametrize(
@@ -151,13 +147,7 @@ def test_expressions():
 
 
 def _doc_script():
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("make_scene_doc",
-                                                  ROOT / "scripts" / "make_scene_doc.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("make_scene_doc")
 
 
 def test_scene_reference_is_up_to_date():

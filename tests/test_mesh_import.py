@@ -16,10 +16,10 @@ import dolfinx
 import meshio
 import numpy as np
 import pytest
-from conftest import ROOT, mechanics_scene, network_geometry, run_parallel
+from conftest import ROOT, config_error, mechanics_scene, network_geometry, run_parallel
 from mpi4py import MPI
 
-from poromech.config import ConfigError, load_scene, plane_geometry, scene_from_dict
+from poromech.config import load_scene, plane_geometry, scene_from_dict
 from poromech.mesh import create_fractured_mesh
 from poromech.mesh_import import import_mesh
 from poromech.meshing import generate_mesh
@@ -81,11 +81,7 @@ def mesh_scene(path, fractures=("F",), **spec):
 
 
 def error(raw) -> str:
-    with pytest.raises(ConfigError) as info:
-        scene_from_dict(raw)
-    msg = str(info.value)
-    assert "\n" not in msg
-    return msg
+    return config_error(raw)
 
 
 @pytest.fixture

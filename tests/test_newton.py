@@ -85,6 +85,31 @@ def test_reuse_can_be_switched_off():
     sim.close()
 
 
+@pytest.mark.parametrize(("name", "overrides"), [
+    ("sneddon", ["contact.formulation=nitsche"]),
+    ("six_fractures_mechanics", ["time.steps=2", "contact.formulation=nitsche"]),
+    ("six_fractures_mechanics", ["time.steps=2", "contact.formulation=mixed"]),
+])
+def test_jacobian_kept_for_an_unchanged_active_set_changes_no_iterate(name, overrides):
+    """The Jacobian is a function of the contact branches only, so keeping it while no code
+    changes gives the iterates of a fresh assembly. A fracture at rest is a tie of the open
+    branch (``P_τ = 0`` takes the stick derivative): coded like an open face, it kept a wrong
+    Jacobian and Newton crawled to its iteration limit on an open Sneddon crack."""
+    runs = {}
+    for keep in (True, False):
+        sim = simulation(name, *overrides)
+        sim.solver.states_determine_jacobian = keep
+        runs[keep] = sim.run()
+        sim.close()
+    assert [r["iterations"] for r in runs[True]] == [r["iterations"] for r in runs[False]]
+    roundoff = 1e-12 * runs[False][0]["residuals"][0]
+    for kept, fresh in zip(runs[True], runs[False], strict=True):
+        assert kept["converged"] and kept["iterations"] <= 12
+        np.testing.assert_allclose(kept["residuals"], fresh["residuals"], rtol=1e-6, atol=roundoff)
+    if name == "six_fractures_mechanics":
+        assert sum(r["jacobian_reuses"] for r in runs[True]) >= 1
+
+
 def test_stale_factorization_preconditions_small_active_set_changes():
     """After few contact-state switches, GMRES with the previous factorization gives the Newton
     direction; the converged solution is the one found with a refactorization per iteration."""
