@@ -46,13 +46,22 @@ CASES = {
     "Δt = T": (SCENE, ["time.steps=1"], "one step over the whole loading and drainage"),
     "b = 1, M = ∞": (SCENE, ["material.biot=1", "flow.biot_modulus=null"],
                      "incompressible constituents: no storage but b div u"),
+    "b = 1, M = ∞, Δt = 1 s": (SCENE, ["material.biot=1", "flow.biot_modulus=null",
+                                        f"time={STEPS_2000}"],
+                               "incompressible constituents at small steps"),
+    "… without fixed-stress": (SCENE, ["material.biot=1", "flow.biot_modulus=null",
+                                       f"time={STEPS_2000}", "coupling.stabilization=0"],
+                               "the same with the paper's g (coupling.stabilization = 0)"),
     "injection opens": (INJECTION, [],
                         "a fracture opens completely under injection, then closes"),
     "frictionless": (SCENE, ["contact.friction=frictionless"], "zero friction"),
-    "E 1 | 100 GPa": (SCENE, ["material.young=where(x < 1.0, 1.0e9, 1.0e11)"],
+    "E 1 GPa / 100 GPa": (SCENE, ["material.young=where(x < 1.0, 1.0e9, 1.0e11)"],
                       "Young's modulus 1 GPa next to 100 GPa"),
     "K_f contrast 1e8": (SCENE, ["flow.fracture_permeability=where(x < 1.0, 1.0e-2, 1.0e-10)"],
                          "fracture permeability 1e-2 m² left of x = 1, 1e-10 m² right"),
+    "… coupling.atol = 1 Pa": (SCENE, ["flow.fracture_permeability=where(x < 1.0, 1.0e-2, 1.0e-10)",
+                                       "coupling.atol=1.0"],
+                               "the same, stopping at an RMS residual of 1 Pa"),
 }
 
 
