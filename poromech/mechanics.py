@@ -154,6 +154,7 @@ class MechanicsModel:
                       c.beta_t if c.beta_t is not None else Contact.BETA_T_PER_E * self.young_max)
         formulation = c.formulation if self.fm.num_fracture_faces else "none"
         self.warnings: list[str] = []
+        self.coercivity_ratio: float | None = None  # of symmetric Nitsche (θ = 1) only
         if c.theta == 1 and formulation in ("nitsche", "mean_nitsche", "stabilized_mixed"):
             self._check_symmetric_nitsche(young)
         return cforms.ContactParameters(

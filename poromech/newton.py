@@ -195,6 +195,7 @@ class SemiSmoothNewton:
         self._forced_reason = None
         self._last_states = None
         self._jacobian_states = None  # active set of the assembled Jacobian
+        self._assembled = True  # the matrix was assembled since the last factorization
         self.states_determine_jacobian = False
         self._costs: dict[str, float] = {}  # seconds of a refactorization, of a stale solve
         self.prefix = prefix
@@ -269,6 +270,7 @@ class SemiSmoothNewton:
         A.zeroEntries()
         dolfinx.fem.petsc.assemble_matrix(A, self.J, self.bcs, diag=1.0)
         A.assemble()
+        self._assembled = True
         self._jacobian_states = None if self._last_states is None else self._last_states.copy()
         self.record.time_assembly += time.perf_counter() - t0
 
@@ -279,7 +281,13 @@ class SemiSmoothNewton:
         return bool(self.comm.allreduce(same, op=MPI.LAND))
 
     def jacobian_unchanged(self) -> bool:
-        """True when the Jacobian equals the one last factorized (collective)."""
+        """True when the Jacobian equals the one last factorized (collective).
+
+        Without an assembly since that factorization (the Jacobian was kept for an unchanged
+        active set) it is the same matrix; otherwise the values are compared.
+        """
+        if not self._assembled:  # the same on every rank: assemblies are collective
+            return self._values is not None
         values = self.A.getValuesCSR()[2]
         same = self._values is not None and np.array_equal(values, self._values)
         return self.comm.allreduce(bool(same), op=MPI.LAND)
@@ -287,6 +295,7 @@ class SemiSmoothNewton:
     def factorized(self) -> None:
         """Remember the values of the Jacobian just factorized."""
         self._values = self.A.getValuesCSR()[2].copy() if self.reuse_jacobian else None
+        self._assembled = False
 
     def _create_stale_ksp(self, prefix: str, factor_pc: PETSc.PC) -> PETSc.KSP:
         """GMRES on the Jacobian preconditioned by the (stale) factorization of ``factor_pc``.

@@ -120,9 +120,9 @@ class MechanicsSimulation:
             "beta_n": self.model.beta0[0],
             "beta_t": self.model.beta0[1],
         }
-        if getattr(self.model, "coercivity_ratio", None) is not None:
+        if self.model.coercivity_ratio is not None:
             out["coercivity_ratio"] = self.model.coercivity_ratio
-        if getattr(self.model, "warnings", None):
+        if self.model.warnings:
             out["warnings"] = list(self.model.warnings)
         return out
 
