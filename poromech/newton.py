@@ -30,10 +30,11 @@ for residuals that are piecewise affine in the unknowns (2D contact with Coulomb
 
 The Jacobian of the 2D problems is piecewise constant in the contact states, so the factorization
 is reused whenever the assembled Jacobian is bitwise unchanged (``reuse_jacobian``); when only a
-few contact states switched since the last factorization, GMRES preconditioned by that stale
-factorization usually gives the direction in a few iterations (``stale_factorization``, options
-prefix ``mech_stale_``), and the matrix is refactorized only if it does not. A residual evaluated
-during the line search is not assembled again for the accepted iterate.
+few contact points switched state since the last factorization, GMRES preconditioned by that
+stale factorization usually gives the direction in a few iterations (``stale_factorization``,
+options prefix ``mech_stale_``), and the matrix is refactorized only if it does not. The choice
+depends on the contact states only, never on measured times, so a run is reproducible. A
+residual evaluated during the line search is not assembled again for the accepted iterate.
 """
 
 from __future__ import annotations
@@ -70,8 +71,26 @@ DEFAULT_OPTIONS: dict[str, object] = {
     "pc_factor_mat_solver_type": "mumps",
 }
 
-#: GMRES iterations allowed with a stale factorization before refactorizing.
-STALE_MAX_IT = 20
+#: GMRES iterations allowed with a stale factorization before refactorizing: about what one
+#: refactorization costs (measured on the six-fracture scene with P2 Nitsche on 2 ranks, one
+#: factorization took the time of 7.5, 10 and 12 stale GMRES iterations at 12.5k, 49k and 192k
+#: unknowns), so that a failed attempt at most doubles the cost of the iteration.
+STALE_MAX_IT = 12
+#: Relative true residual of a stale GMRES solve. Tighter is not reachable reliably: with a
+#: stale factorization the residual stagnates between 1e-8 and 1e-9 of ``|F|`` on that scene.
+#: A direction this accurate lands within 1e-7 ``|F|`` of the root of its affine piece, so it
+#: costs at most one more (cheap) Newton iteration.
+STALE_RTOL = 1e-7
+#: Stale GMRES is tried when at most this many contact points changed state since the last
+#: factorization: each changed point changes the Jacobian by a rank of one or two, and GMRES
+#: converges in about that rank plus one iteration.
+STALE_MAX_CHANGES = 8
+#: Stale GMRES is tried only on systems with at least this many unknowns. Below, a
+#: factorization is so cheap that GMRES iterations with it cost more (coupled six-fracture
+#: scene, P2 Nitsche, contact mechanics seconds for the 20 steps with / without stale solves:
+#: 7.9 / 4.4 at 12.5k unknowns on 1 rank, 30.6 / 28.5 at 49k on 2 ranks; 150 with them at 192k
+#: on 2 ranks, where 171 was spent with 3.3 times as many factorizations).
+STALE_MIN_UNKNOWNS = 100_000
 
 
 def _is_direct(ksp: PETSc.KSP) -> bool:
@@ -142,10 +161,10 @@ class SemiSmoothNewton:
         options: Options merged over :data:`DEFAULT_OPTIONS` (scene values).
         line_search: ``"contact"`` or a PETSc line search type.
         reuse_jacobian: Reuse the factorization while the Jacobian is bitwise unchanged.
-        stale_factorization: When few contact states changed since the last factorization,
-            first try GMRES preconditioned by that (stale) factorization; refactor only if it
-            does not converge within :data:`STALE_MAX_IT` iterations (PETSc options prefix
-            ``<prefix>stale_``).
+        stale_factorization: When at most :data:`STALE_MAX_CHANGES` contact points changed
+            state since the last factorization, first try GMRES preconditioned by that (stale)
+            factorization; refactor only if it does not converge within :data:`STALE_MAX_IT`
+            iterations (PETSc options prefix ``<prefix>stale_``).
         states: Callable returning the active-set codes of the owned contact points at the
             current unknowns, or None: the record's ``active_set_changes`` counts the codes that
             change from one iterate to the next. Pass
@@ -186,6 +205,8 @@ class SemiSmoothNewton:
         self.reuse_jacobian = reuse_jacobian
         self.stale_factorization = stale_factorization
         self._stale_ksp = None
+        #: Smallest system on which stale GMRES is tried (:data:`STALE_MIN_UNKNOWNS`).
+        self.stale_min_unknowns = STALE_MIN_UNKNOWNS
         self._num_points = 0
         self.states = states
         self.reference_norm = 0.0
@@ -195,9 +216,9 @@ class SemiSmoothNewton:
         self._forced_reason = None
         self._last_states = None
         self._jacobian_states = None  # active set of the assembled Jacobian
+        self._factor_states = None  # active set of the factorized Jacobian
         self._assembled = True  # the matrix was assembled since the last factorization
         self.states_determine_jacobian = False
-        self._costs: dict[str, float] = {}  # seconds of a refactorization, of a stale solve
         self.prefix = prefix
         self.snes = self._create_snes(prefix, options or {})
         self.record = NewtonRecord()
@@ -293,9 +314,21 @@ class SemiSmoothNewton:
         return self.comm.allreduce(bool(same), op=MPI.LAND)
 
     def factorized(self) -> None:
-        """Remember the values of the Jacobian just factorized."""
+        """Remember the values and the active set of the Jacobian just factorized."""
         self._values = self.A.getValuesCSR()[2].copy() if self.reuse_jacobian else None
+        self._factor_states = self._jacobian_states
         self._assembled = False
+
+    def changes_since_factorization(self) -> int | None:
+        """Contact points whose state differs from that of the factorized Jacobian (collective).
+
+        Counted over all ranks; None when unknown (no states, or not recorded).
+        """
+        known = self._factor_states is not None and self._last_states is not None
+        if not self.comm.allreduce(known, op=MPI.LAND):
+            return None
+        return int(self.comm.allreduce(
+            int(np.count_nonzero(self._last_states != self._factor_states))))
 
     def _create_stale_ksp(self, prefix: str, factor_pc: PETSc.PC) -> PETSc.KSP:
         """GMRES on the Jacobian preconditioned by the (stale) factorization of ``factor_pc``.
@@ -305,7 +338,7 @@ class SemiSmoothNewton:
         ksp = PETSc.KSP().create(self.comm)
         ksp.setOptionsPrefix(f"{prefix}stale_")
         ksp.setType(PETSc.KSP.Type.GMRES)
-        ksp.setTolerances(rtol=1e-10, atol=0.0, max_it=STALE_MAX_IT)
+        ksp.setTolerances(rtol=STALE_RTOL, atol=0.0, max_it=STALE_MAX_IT)
         # right preconditioning: the test is on the true residual of the current Jacobian
         ksp.setPCSide(PETSc.PC.Side.RIGHT)
         ksp.setNormType(PETSc.KSP.NormType.UNPRECONDITIONED)
@@ -414,7 +447,8 @@ class _Step:
         """Newton direction ``J Y = F`` with the cheapest exact-enough solve.
 
         Reuse the factorization when ``J`` is unchanged; after few contact-state changes try
-        GMRES preconditioned by the stale factorization; otherwise refactorize.
+        GMRES preconditioned by the stale factorization; otherwise refactorize. The choice
+        depends on the active sets only (the same on every rank and in every run).
         """
         s = self.s
         has_factor = s._values is not None
@@ -422,41 +456,25 @@ class _Step:
             ksp.getPC().setReusePreconditioner(True)
             ksp.solve(F, Y)
             return ksp.getConvergedReason() > 0
-        changes = s.record.active_set_changes[-1] if s.record.active_set_changes else None
-        few = changes is not None and changes <= max(8, s._num_points // 50)
-        if s.stale_factorization and has_factor and few and _is_direct(ksp) and self._stale_pays():
+        few = False
+        if (s.stale_factorization and has_factor and _is_direct(ksp)
+                and s.A.getSize()[0] >= s.stale_min_unknowns):
+            changes = s.changes_since_factorization()
+            few = changes is not None and changes <= STALE_MAX_CHANGES
+        if few:
             ksp.getPC().setReusePreconditioner(True)  # keep the old factors when applied
             stale = s._stale_ksp
-            t0 = time.perf_counter()
             stale.solve(F, Y)
-            self._cost("stale", t0)
             s.record.linear_iterations += stale.getIterationNumber()
             if stale.getConvergedReason() > 0:
                 s.record.stale_solves += 1
                 return True
         ksp.setOperators(s.A, s.A)
         ksp.getPC().setReusePreconditioner(False)
-        t0 = time.perf_counter()
         ksp.solve(F, Y)
-        self._cost("factor", t0)
         s.record.factorizations += 1
         s.factorized()
         return ksp.getConvergedReason() > 0
-
-    def _cost(self, kind: str, t0: float) -> None:
-        """Running mean (weight 1/2) of the seconds of a stale solve or a refactorization."""
-        seconds = self.s.comm.allreduce(time.perf_counter() - t0, op=MPI.MAX)
-        old = self.s._costs.get(kind)
-        self.s._costs[kind] = seconds if old is None else 0.5 * (old + seconds)
-
-    def _stale_pays(self) -> bool:
-        """Whether to try a stale GMRES solve: while it has been cheaper than a refactorization.
-
-        Also while either cost is unknown. On small meshes a factorization costs less than the
-        ~10 GMRES iterations of a stale solve, on large ones far more.
-        """
-        c = self.s._costs
-        return "stale" not in c or "factor" not in c or c["stale"] < c["factor"]
 
     def _norm_at(self, snes, X, Y, alpha: float) -> float:
         s = self.s
