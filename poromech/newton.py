@@ -33,8 +33,9 @@ is reused whenever the assembled Jacobian is bitwise unchanged (``reuse_jacobian
 few contact points switched state since the last factorization, GMRES preconditioned by that
 stale factorization usually gives the direction in a few iterations (``stale_factorization``,
 options prefix ``mech_stale_``), and the matrix is refactorized only if it does not. The choice
-depends on the contact states only, never on measured times, so a run is reproducible. A
-residual evaluated during the line search is not assembled again for the accepted iterate.
+depends on the contact states and the system size only, never on measured times, so a run is
+reproducible. A residual evaluated during the line search is not assembled again for the
+accepted iterate.
 """
 
 from __future__ import annotations
@@ -207,7 +208,6 @@ class SemiSmoothNewton:
         self._stale_ksp = None
         #: Smallest system on which stale GMRES is tried (:data:`STALE_MIN_UNKNOWNS`).
         self.stale_min_unknowns = STALE_MIN_UNKNOWNS
-        self._num_points = 0
         self.states = states
         self.reference_norm = 0.0
         #: Newton steps taken even when the initial residual already meets the tolerance (a
@@ -377,7 +377,6 @@ class SemiSmoothNewton:
             dolfinx.la.petsc._ghost_update(x, PETSc.InsertMode.INSERT, PETSc.ScatterMode.FORWARD)
             assign(x, self.u)
             s = self.states()
-            self._num_points = self.comm.allreduce(len(s), op=MPI.SUM)
             if self._last_states is not None and it > 0:
                 self.record.active_set_changes.append(
                     int(self.comm.allreduce(int(np.count_nonzero(s != self._last_states))))
@@ -448,7 +447,8 @@ class _Step:
 
         Reuse the factorization when ``J`` is unchanged; after few contact-state changes try
         GMRES preconditioned by the stale factorization; otherwise refactorize. The choice
-        depends on the active sets only (the same on every rank and in every run).
+        depends on the active sets and the system size only (the same on every rank and in
+        every run).
         """
         s = self.s
         has_factor = s._values is not None
