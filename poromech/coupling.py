@@ -100,9 +100,11 @@ class PoromechanicsSimulation:
         self.d0 = self.flow.properties.aperture.copy()
         self.storage = self.flow.properties.storage.copy()  # 1/M, the physical storage
         self.beta = self._fixed_stress(scene.coupling.stabilization)
-        if np.any(self.beta > 0):
+        self.beta_f = self._fracture_fixed_stress(scene.coupling.fracture_stabilization)
+        if np.any(self.beta > 0) or self.beta_f is not None:
             self.flow.set_properties(replace(self.flow.properties,
-                                             storage=self.storage + self.beta))
+                                             storage=self.storage + self.beta,
+                                             fracture_storage=self.beta_f))
         self.records: list[dict] = []
         self.has_initial_output = True
         self.writer: FlowWriter | None = None
@@ -168,7 +170,7 @@ class PoromechanicsSimulation:
                              f"{rec.reason} after {rec.iterations} iterations; residual history "
                              + ", ".join(f"{r:.3e}" for r in rec.residuals))
             return p_m, p_f
-        self._update_flow(p_m)
+        self._update_flow(p_m, p_f)
         try:
             with self.timer.phase("flow_solve"):
                 lin = self.flow.solve(self.t, self._step)
@@ -196,7 +198,27 @@ class PoromechanicsSimulation:
         mu = young / (2 * (1 + nu))
         return factor * self.biot**2 / (lam + mu)
 
-    def _update_flow(self, p_in: np.ndarray | None = None) -> None:
+    def _fracture_fixed_stress(self, factor: float) -> np.ndarray | None:
+        """``β_f = factor · π (1 - ν²) a / E`` per owned fracture face (m/Pa), or None.
+
+        ``π (1 - ν²) a / E`` is the mean opening per unit pressure of a pressurized crack of
+        half-length ``a`` (plane strain), ``a`` that of the face's fracture, ``E`` and ``ν`` at
+        the face midpoint. Added to the fracture volume balance of the Darcy solve inside ``g``
+        as ``β_f (p_f - p_f,in)``, like the matrix term: it changes ``g`` but not its fixed
+        point, and gives the fracture pressure a response to the volume change where the
+        matrix cannot drain the fractures (an impervious matrix seals them).
+        """
+        if factor == 0 or self.nf == 0 or self.scene.time is None:
+            return None
+        f = self.fm.fractures
+        a = 0.5 * self.fm.geometry.fracture_lengths()[f.fracture]
+        x = f.midpoint
+        young = self.scene.material.young(x[:, 0], x[:, 1], 0.0)
+        nu = self.scene.material.poisson(x[:, 0], x[:, 1], 0.0)
+        return factor * np.pi * (1 - nu**2) * a / young
+
+    def _update_flow(self, p_in: np.ndarray | None = None,
+                     pf_in: np.ndarray | None = None) -> None:
         """Aperture and porosity from the current displacement, into the Darcy problem."""
         jn = self.model.face_fields()[:, 0] if self.nf else np.empty(0)
         d = self.d0 - jn
@@ -207,8 +229,12 @@ class PoromechanicsSimulation:
             - self.storage * self.p0_cells
         if p_in is not None:
             fixed = fixed - self.beta * p_in
-        self._step = TimeStep(self.dt, self.porosity_prev, fixed, self.aperture_prev) \
-            if self.dt is not None else None
+        aperture_fixed = None
+        if self.beta_f is not None:
+            aperture_fixed = self.flow.properties.aperture - self.beta_f * (
+                self.flow.fracture_pressure if pf_in is None else pf_in)
+        self._step = TimeStep(self.dt, self.porosity_prev, fixed, self.aperture_prev,
+                              aperture_fixed) if self.dt is not None else None
 
     def _residual(self, snes, x, f) -> None:
         if self._failure is not None:
@@ -327,7 +353,8 @@ class PoromechanicsSimulation:
         self.mech.accept(t)
         if self._step is not None:
             self.porosity_prev = self.flow.porosity(self._step)
-        self.aperture_prev = self.flow.properties.aperture.copy()
+        self.aperture_prev = (self.flow.properties.aperture if self._step is None
+                              else self.flow.fracture_volume(self._step)).copy()
         self._accepted_p = self.flow.p.copy()
         self.history = [*self.history[-1:], (t, self._pressures())]
 

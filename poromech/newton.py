@@ -382,7 +382,13 @@ class SemiSmoothNewton:
                     int(self.comm.allreduce(int(np.count_nonzero(s != self._last_states))))
                 )
             self._last_states = s
-        log.debug("%sNewton %d: |F| = %.3e", self.prefix, it, fnorm)
+        if log.isEnabledFor(logging.DEBUG):  # with the step taken and the states it switched
+            r, extra = self.record, ""
+            if it > 0 and r.steps:
+                extra = f", step {r.steps[-1]:.3g}"
+            if it > 0 and r.active_set_changes:
+                extra += f", {r.active_set_changes[-1]} state changes"
+            log.debug("%sNewton %d: |F| = %.3e%s", self.prefix, it, fnorm, extra)
 
     # -- solve ------------------------------------------------------------------------------
     def solve(self) -> NewtonRecord:

@@ -39,6 +39,9 @@ STEPS_2000 = "{times: [" + ", ".join(str(float(k)) for k in range(1, 21)) + "]}"
 CASES = {
     "K_m 1e-20": (SCENE, ["flow.permeability=[1.0e-20, 5.0e-21]"],
                   "nearly impervious matrix: undrained, pressure builds up"),
+    "… fracture fixed-stress": (SCENE, ["flow.permeability=[1.0e-20, 5.0e-21]",
+                                       "coupling.fracture_stabilization=1"],
+                                "the same with β_f (p_f - p_in) in the fracture balance of g"),
     "K_m 1e-10": (SCENE, ["flow.permeability=[1.0e-10, 5.0e-11]"],
                   "very permeable matrix: pressure stays at p⁰, stiff diffusion"),
     "Δt = T/2000": (SCENE, [f"time={STEPS_2000}"],
@@ -54,6 +57,8 @@ CASES = {
                                "the same with the paper's g (coupling.stabilization = 0)"),
     "injection opens": (INJECTION, [],
                         "a fracture opens completely under injection, then closes"),
+    "… with fracture fixed-stress": (INJECTION, ["coupling.fracture_stabilization=1"],
+                                 "the same with β_f (p_f - p_in) in the fracture balance of g"),
     "frictionless": (SCENE, ["contact.friction=frictionless"], "zero friction"),
     "E 1 GPa / 100 GPa": (SCENE, ["material.young=where(x < 1.0, 1.0e9, 1.0e11)"],
                       "Young's modulus 1 GPa next to 100 GPa"),

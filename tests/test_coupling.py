@@ -119,6 +119,29 @@ def test_injection_opens_closes_and_conserves_mass(tmp_path):
     assert totals["g_evaluations"] == sum(r["g_evaluations"] for r in summary["solves"])
 
 
+def test_fracture_fixed_stress_changes_g_not_its_fixed_point(tmp_path):
+    """``coupling.fracture_stabilization`` adds ``β_f (p_f - p_in)`` to the fracture balance of
+    ``g``: the injected fracture that opens and closes reaches the same states, apertures and
+    pressures (to the fixed-point tolerance), and every step still conserves mass."""
+    runs = {}
+    for factor in (0.0, 1.0):
+        scene = load_scene(INJECTION, [f"coupling.fracture_stabilization={factor}"])
+        summary = run_scene(scene, tmp_path / f"f{factor}")
+        assert summary["status"] == "converged"
+        for rec in summary["solves"]:
+            assert rec["mass_balance"]["relative_residual"] < 1e-8
+        runs[factor] = tmp_path / f"f{factor}"
+    a, b = (read_series(runs[f], "fractures") for f in (0.0, 1.0))
+    fa, fb = (read_series(runs[f], "flow") for f in (0.0, 1.0))
+    assert a.times == b.times
+    for k in range(len(a.times)):
+        assert np.array_equal(a.fields(k)["state"], b.fields(k)["state"])
+        for series, name in ((a, "aperture"), (a, "p_f"), (fa, "p_m")):
+            other = b if series is a else fb
+            x, y = series.fields(k)[name], other.fields(k)[name]
+            assert np.abs(x - y).max() <= 1e-4 * np.abs(x).max(), (k, name)
+
+
 def test_restart_reproduces_the_uninterrupted_run(tmp_path, monkeypatch):
     scene = load_scene(TERZAGHI, ["time.steps=4"])
     full = run_scene(scene, tmp_path / "full")

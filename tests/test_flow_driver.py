@@ -195,3 +195,47 @@ def test_aperture_change_is_accumulated(tmp_path):
         bal = s["mass_balance"]
         assert bal["storage_rate"] == pytest.approx(1e-5 * length, rel=1e-9)
         assert bal["relative_residual"] < 1e-8
+
+
+def test_fracture_storage_keeps_the_solution_it_is_centred_on():
+    """``s_f (p_f - p_in)`` in the fracture balance: no change when ``p_in`` is the solution.
+
+    With ``d̂ = d - s_f p_in`` the fracture volume is ``d + s_f (p_f - p_in)``: centred on the
+    solution without storage it changes nothing (the fixed point of the coupling's ``g`` is
+    the same); centred elsewhere it pulls ``p_f`` towards ``p_in``, and the mass balance
+    counts it.
+    """
+    from dataclasses import replace
+
+    from poromech.flow.balance import compute_fluxes, mass_balance
+    from poromech.flow.problem import TimeStep
+    from poromech.flow.setup import problem_from_scene
+
+    scene = scene_from_dict(flow_scene(aperture="1e-4*(1 + t/10)"))
+    fm = build_mesh(scene, comm)
+    pb = problem_from_scene(scene, fm)
+    nc = len(pb.cell_pressure)
+    d_prev = pb.properties.aperture.copy()
+    pb.set_aperture(1.01 * d_prev)  # the fractures grow: fluid is stored in them
+    phi = np.full(nc, 0.1)
+    step = TimeStep(1.0, phi, phi, d_prev)
+    pb.solve(1.0, step)
+    p_ref = pb.p.copy()
+    pf_ref = pb.fracture_pressure.copy()
+    s_f = np.full(len(d_prev), 1e-9)
+    pb.set_properties(replace(pb.properties, fracture_storage=s_f))
+    d = pb.properties.aperture
+    centred = replace(step, aperture_fixed=d - s_f * pf_ref)
+    pb.solve(1.0, centred)
+    scale = comm.allreduce(np.abs(p_ref).max(initial=0.0), op=MPI.MAX)
+    diff = comm.allreduce(np.abs(pb.p - p_ref).max(initial=0.0), op=MPI.MAX)
+    assert diff <= 1e-8 * scale
+    elsewhere = replace(step, aperture_fixed=d - s_f * (pf_ref + 1e3))
+    pb.solve(1.0, elsewhere)
+    shift = comm.allreduce(np.abs(pb.fracture_pressure - pf_ref).max(initial=0.0), op=MPI.MAX)
+    assert shift > 10.0
+    bal = mass_balance(pb, compute_fluxes(pb), 1.0, elsewhere)
+    assert bal["relative_residual"] < 1e-8
+    assert bal["max_local_residual"] < 1e-8
+    volume = pb.fracture_volume(elsewhere)
+    assert np.allclose(volume, d + s_f * (pb.fracture_pressure - pf_ref - 1e3), rtol=0, atol=1e-15)

@@ -79,7 +79,7 @@ def boundary_fluxes(problem: DarcyProblem, fluxes: Fluxes) -> dict[str, dict[str
 
 def _local_terms(problem: DarcyProblem, t: float, step: TimeStep | None):
     """Sources and accumulation rates of owned cells and fracture faces (m²/s)."""
-    g, f, props = problem.geom, problem.faces, problem.properties
+    g, f = problem.geom, problem.faces
     q = np.zeros(g.num_cells)
     qf = np.zeros(len(f.length))
     if problem.source is not None:
@@ -89,7 +89,7 @@ def _local_terms(problem: DarcyProblem, t: float, step: TimeStep | None):
     acc, accf = np.zeros_like(q), np.zeros_like(qf)
     if step is not None:
         acc = g.volume * (problem.porosity(step) - step.porosity_prev) / step.dt
-        accf = f.length * (props.aperture - step.aperture_prev) / step.dt
+        accf = f.length * (problem.fracture_volume(step) - step.aperture_prev) / step.dt
     return q, qf, acc, accf
 
 

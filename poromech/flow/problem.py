@@ -76,6 +76,9 @@ class FlowProperties:
         conductivity: Fracture conductivity ``C_f`` ``(nf,)`` (m³), overrides ``K_f,τ d_f``.
         storage: Matrix storage ``s_K = 1/M`` ``(nc,)`` (1/Pa); zero for an incompressible
             fluid and rigid matrix.
+        fracture_storage: Fracture storage ``s_f`` ``(nf,)`` (m/Pa), the change of the fracture
+            volume per unit length and unit fracture pressure in the fracture balance
+            ``|σ| (d̂ⁿ + s_f p_fⁿ - dⁿ⁻¹)/Δt``; None: none (the volume is the aperture).
     """
 
     permeability: Array
@@ -85,6 +88,7 @@ class FlowProperties:
     normal_permeability: Array
     conductivity: Array
     storage: Array
+    fracture_storage: Array | None = None
 
 
 @dataclass(frozen=True)
@@ -98,12 +102,15 @@ class TimeStep:
             porosity (for a coupled problem ``φ⁰ + b((div uⁿ)_K - (div u⁰)_K) - p⁰/M``).
         aperture_prev: ``d_σⁿ⁻¹`` on the owned fracture faces (``dⁿ`` is the current aperture
             of the problem's properties).
+        aperture_fixed: ``d̂_σⁿ``, the pressure-independent part of the new fracture volume
+            ``d̂_σⁿ + s_f p_fⁿ`` (with a fracture storage ``s_f``); None: the current aperture.
     """
 
     dt: float
     porosity_prev: Array
     porosity_fixed: Array
     aperture_prev: Array
+    aperture_fixed: Array | None = None
 
 
 def fracture_conductivity(props: FlowProperties) -> Array:
@@ -244,8 +251,11 @@ class DarcyProblem:
     def element_values(self, dt: float | None) -> ElementValues:
         """Element matrices for a steady (``dt`` None) or implicit Euler solve."""
         storage = np.zeros(self.geom.num_cells)
+        fracture_storage = np.zeros(len(self.faces.length))
         if dt is not None:
             storage = self.geom.volume * self.properties.storage / dt
+            if self.properties.fracture_storage is not None:
+                fracture_storage = self.faces.length * self.properties.fracture_storage / dt
         E = cell_elements(self.A_cell)
         plain, touching = self.pattern.plain_cells, self.pattern.fracture_cells
         return ElementValues(
@@ -255,6 +265,7 @@ class DarcyProblem:
                           np.concatenate([self.shift.pair, self.shift.pair])),
             fracture_elements(self.T_fracture),
             storage,
+            fracture_storage,
         )
 
     # -- solves ---------------------------------------------------------------------------
@@ -291,7 +302,8 @@ class DarcyProblem:
 
     @property
     def _has_storage(self) -> bool:
-        local = bool(np.any(self.properties.storage > 0))
+        s_f = self.properties.fracture_storage
+        local = bool(np.any(self.properties.storage > 0) or (s_f is not None and np.any(s_f > 0)))
         return bool(self.comm.allreduce(local, op=MPI.LOR))
 
     def rhs(self, t: float, step: TimeStep | None) -> Array:
@@ -309,7 +321,8 @@ class DarcyProblem:
         b -= np.bincount(dof, d_f * self._boundary_values(dof, bc, t), minlength=d.num_local)
         if step is not None:
             b[d.cell] += g.volume * (step.porosity_prev - step.porosity_fixed) / step.dt
-            b[d.fracture] -= f.length * (self.properties.aperture - step.aperture_prev) / step.dt
+            fixed = self.properties.aperture if step.aperture_fixed is None else step.aperture_fixed
+            b[d.fracture] -= f.length * (fixed - step.aperture_prev) / step.dt
         values = self._values if self._values is not None else self.element_values(None).flat()
         return b + self.pattern.dirichlet_rhs(values, self.dirichlet_values(t))
 
@@ -405,6 +418,13 @@ class DarcyProblem:
     def porosity(self, step: TimeStep) -> Array:
         """``φ_Kⁿ = φ̂_Kⁿ + s_K p_Kⁿ`` after a step (owned cells)."""
         return step.porosity_fixed + self.properties.storage * self.cell_pressure
+
+    def fracture_volume(self, step: TimeStep) -> Array:
+        """``d̂_σⁿ + s_f p_fⁿ`` after a step (owned fracture faces; the aperture by default)."""
+        s_f = self.properties.fracture_storage
+        if step.aperture_fixed is None or s_f is None:
+            return self.properties.aperture
+        return step.aperture_fixed + s_f * self.fracture_pressure
 
     def destroy(self) -> None:
         """Free the PETSc objects."""

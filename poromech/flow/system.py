@@ -9,7 +9,8 @@ semi-definite element matrices:
 * fracture face on ``[p_{f,σ}, p_{e_1}, p_{e_2}]``: two-point fluxes ``T*_{σ,e} / η`` (half
   face and, at an intersection, the overlap with the crossed fractures:
   :mod:`poromech.flow.intersections`);
-* storage on ``[p_K]``: ``|K| s_K / Δt`` (zero for steady solves).
+* storage on ``[p_K]``: ``|K| s_K / Δt`` and on ``[p_{f,σ}]``: ``|σ| s_f / Δt`` (zero for
+  steady solves).
 
 On fracture faces with a stiff normal coupling the system is solved for
 ``δ± = p_{K±,σ} - p_{f,σ}`` instead of the traces (see :mod:`poromech.flow.shift`): cell
@@ -118,6 +119,7 @@ class ElementValues:
         pair: ``(2 nf, 2, 2)`` matrix-fracture elements, ``+`` sides then ``-`` sides.
         fracture: ``(nf, 3, 3)`` fracture-face elements.
         storage: ``(nc,)`` storage diagonal ``|K| s_K / Δt``.
+        fracture_storage: ``(nf,)`` fracture storage diagonal ``|σ| s_f / Δt``.
     """
 
     cell: Array
@@ -125,11 +127,12 @@ class ElementValues:
     pair: Array
     fracture: Array
     storage: Array
+    fracture_storage: Array
 
     def flat(self) -> Array:
         """All entries in pattern order."""
         return np.concatenate([self.cell.ravel(), self.fracture_cell.ravel(), self.pair.ravel(),
-                               self.fracture.ravel(), self.storage])
+                               self.fracture.ravel(), self.storage, self.fracture_storage])
 
 
 def _element_dofs(dofs: FlowDofs, split) -> list[npt.NDArray[np.int64]]:
@@ -141,7 +144,7 @@ def _element_dofs(dofs: FlowDofs, split) -> list[npt.NDArray[np.int64]]:
     pair_minus = np.column_stack([dofs.trace[:, 1], dofs.fracture])
     pair = np.concatenate([pair_plus, pair_minus])
     frac = np.column_stack([dofs.fracture, dofs.node])
-    return [cell, fcell, pair, frac, dofs.cell[:, None]]
+    return [cell, fcell, pair, frac, dofs.cell[:, None], dofs.fracture[:, None]]
 
 
 class SystemPattern:
