@@ -281,8 +281,11 @@ class SemiSmoothNewton:
         Jacobian changes in time), the Jacobian is a function of the contact branches only, so
         an unchanged active set (the codes of ``states``) means an unchanged matrix: this saves
         the assembly in the many solves of a coupled run that start in the last active set.
+        Without :attr:`reuse_jacobian` the matrix is always assembled, so that the direct
+        solver refactorizes it (PETSc keeps the factors of a matrix that was not modified).
         """
-        if self.states_determine_jacobian and self._same_states(self._jacobian_states):
+        if (self.reuse_jacobian and self.states_determine_jacobian
+                and self._same_states(self._jacobian_states)):
             self.record.jacobian_reuses += 1
             return
         t0 = time.perf_counter()
