@@ -217,22 +217,22 @@ class PoromechanicsSimulation:
         nu = self.scene.material.poisson(x[:, 0], x[:, 1], 0.0)
         return factor * np.pi * (1 - nu**2) * a / young
 
-    def _update_flow(self, p_in: np.ndarray | None = None,
-                     pf_in: np.ndarray | None = None) -> None:
-        """Aperture and porosity from the current displacement, into the Darcy problem."""
+    def _update_flow(self, p_in: np.ndarray, pf_in: np.ndarray) -> None:
+        """Aperture and porosity from the current displacement, into the Darcy problem.
+
+        ``p_in`` and ``pf_in`` are the input pressures of ``g``, the centres of the fixed-stress
+        terms.
+        """
         jn = self.model.face_fields()[:, 0] if self.nf else np.empty(0)
         d = self.d0 - jn
         floor = APERTURE_FLOOR * self.d0
         self._stats.clamped = int(self.comm.allreduce(int(np.count_nonzero(d < floor))))
         self.flow.set_aperture(np.maximum(d, floor))
         fixed = self.porosity0 + self.biot * (self.model.cell_divergence() - self.div0) \
-            - self.storage * self.p0_cells
-        if p_in is not None:
-            fixed = fixed - self.beta * p_in
+            - self.storage * self.p0_cells - self.beta * p_in
         aperture_fixed = None
         if self.beta_f is not None:
-            aperture_fixed = self.flow.properties.aperture - self.beta_f * (
-                self.flow.fracture_pressure if pf_in is None else pf_in)
+            aperture_fixed = self.flow.properties.aperture - self.beta_f * pf_in
         self._step = TimeStep(self.dt, self.porosity_prev, fixed, self.aperture_prev,
                               aperture_fixed) if self.dt is not None else None
 

@@ -321,8 +321,7 @@ class DarcyProblem:
         b -= np.bincount(dof, d_f * self._boundary_values(dof, bc, t), minlength=d.num_local)
         if step is not None:
             b[d.cell] += g.volume * (step.porosity_prev - step.porosity_fixed) / step.dt
-            fixed = self.properties.aperture if step.aperture_fixed is None else step.aperture_fixed
-            b[d.fracture] -= f.length * (fixed - step.aperture_prev) / step.dt
+            b[d.fracture] -= f.length * (self._volume_fixed(step) - step.aperture_prev) / step.dt
         values = self._values if self._values is not None else self.element_values(None).flat()
         return b + self.pattern.dirichlet_rhs(values, self.dirichlet_values(t))
 
@@ -419,12 +418,16 @@ class DarcyProblem:
         """``φ_Kⁿ = φ̂_Kⁿ + s_K p_Kⁿ`` after a step (owned cells)."""
         return step.porosity_fixed + self.properties.storage * self.cell_pressure
 
+    def _volume_fixed(self, step: TimeStep) -> Array:
+        """``d̂_σⁿ``: the given pressure-independent fracture volume, or the current aperture."""
+        return self.properties.aperture if step.aperture_fixed is None else step.aperture_fixed
+
     def fracture_volume(self, step: TimeStep) -> Array:
-        """``d̂_σⁿ + s_f p_fⁿ`` after a step (owned fracture faces; the aperture by default)."""
+        """``d̂_σⁿ + s_f p_fⁿ`` after a step (owned fracture faces), as in the balance solved."""
         s_f = self.properties.fracture_storage
-        if step.aperture_fixed is None or s_f is None:
-            return self.properties.aperture
-        return step.aperture_fixed + s_f * self.fracture_pressure
+        if s_f is None:
+            return self._volume_fixed(step)
+        return self._volume_fixed(step) + s_f * self.fracture_pressure
 
     def destroy(self) -> None:
         """Free the PETSc objects."""
