@@ -32,10 +32,11 @@ The Jacobian of the 2D problems is piecewise constant in the contact states, so 
 is reused whenever the assembled Jacobian is bitwise unchanged (``reuse_jacobian``); when only a
 few contact points switched state since the last factorization, GMRES preconditioned by that
 stale factorization usually gives the direction in a few iterations (``stale_factorization``,
-options prefix ``mech_stale_``), and the matrix is refactorized only if it does not. The choice
-depends on the contact states and the system size only, never on measured times, so a run is
-reproducible. A residual evaluated during the line search is not assembled again for the
-accepted iterate.
+options prefix ``mech_stale_``), and the matrix is refactorized if it does not, or once the
+stale solves since the last factorization have cost as many iterations as a factorization.
+The choice depends on the contact states, the system size and iteration counts, never on
+measured times, so a run is reproducible. A residual evaluated during the line search is not
+assembled again for the accepted iterate.
 """
 
 from __future__ import annotations
@@ -86,6 +87,15 @@ STALE_RTOL = 1e-7
 #: factorization: each changed point changes the Jacobian by a rank of one or two, and GMRES
 #: converges in about that rank plus one iteration.
 STALE_MAX_CHANGES = 8
+#: Stale GMRES iterations allowed in total between two factorizations. Their sum is what the
+#: stale factorization has cost so far; once it reaches the price of one factorization
+#: (:data:`STALE_MAX_IT` iterations), the next Jacobian that is not the factorized one is
+#: factorized (the rent-or-buy rule: at most twice the cost of the best choice in hindsight).
+#: Without it a Jacobian that changed by a few points stayed stale for whole time steps: the
+#: quiet steps of the coupled six-fracture scene at m = 2 made five GMRES solves of 5-9
+#: iterations each, where one factorization and four reuses cost half as much (linear solves
+#: of the run 118-125 s without the budget, 97-110 s with it).
+STALE_BUDGET = STALE_MAX_IT
 #: Stale GMRES is tried only on systems with at least this many unknowns. Below, a
 #: factorization is so cheap that GMRES iterations with it cost more (coupled six-fracture
 #: scene, P2 Nitsche, contact mechanics seconds for the 20 steps with / without stale solves:
@@ -164,8 +174,9 @@ class SemiSmoothNewton:
         reuse_jacobian: Reuse the factorization while the Jacobian is bitwise unchanged.
         stale_factorization: When at most :data:`STALE_MAX_CHANGES` contact points changed
             state since the last factorization, first try GMRES preconditioned by that (stale)
-            factorization; refactor only if it does not converge within :data:`STALE_MAX_IT`
-            iterations (PETSc options prefix ``<prefix>stale_``).
+            factorization; refactor if it does not converge within :data:`STALE_MAX_IT`
+            iterations, or once the stale iterations since the last factorization reach
+            :attr:`stale_budget` (PETSc options prefix ``<prefix>stale_``).
         states: Callable returning the active-set codes of the owned contact points at the
             current unknowns, or None: the record's ``active_set_changes`` counts the codes that
             change from one iterate to the next. Pass
@@ -206,8 +217,11 @@ class SemiSmoothNewton:
         self.reuse_jacobian = reuse_jacobian
         self.stale_factorization = stale_factorization
         self._stale_ksp = None
+        self._stale_spent = 0  # stale GMRES iterations since the last factorization
         #: Smallest system on which stale GMRES is tried (:data:`STALE_MIN_UNKNOWNS`).
         self.stale_min_unknowns = STALE_MIN_UNKNOWNS
+        #: Stale GMRES iterations allowed between two factorizations (:data:`STALE_BUDGET`).
+        self.stale_budget = STALE_BUDGET
         self.states = states
         self.reference_norm = 0.0
         #: Newton steps taken even when the initial residual already meets the tolerance (a
@@ -318,6 +332,7 @@ class SemiSmoothNewton:
 
     def factorized(self) -> None:
         """Remember the values and the active set of the Jacobian just factorized."""
+        self._stale_spent = 0
         self._values = self.A.getValuesCSR()[2].copy() if self.reuse_jacobian else None
         self._factor_states = self._jacobian_states
         self._assembled = False
@@ -455,8 +470,9 @@ class _Step:
         """Newton direction ``J Y = F`` with the cheapest exact-enough solve.
 
         Reuse the factorization when ``J`` is unchanged; after few contact-state changes try
-        GMRES preconditioned by the stale factorization; otherwise refactorize. The choice
-        depends on the active sets and the system size only (the same on every rank and in
+        GMRES preconditioned by the stale factorization, while the stale iterations since the
+        factorization stay below :attr:`stale_budget`; otherwise refactorize. The choice depends
+        on the active sets, the system size and iteration counts (the same on every rank and in
         every run).
         """
         s = self.s
@@ -467,13 +483,14 @@ class _Step:
             return ksp.getConvergedReason() > 0
         few = False
         if (s.stale_factorization and has_factor and _is_direct(ksp)
-                and s.A.getSize()[0] >= s.stale_min_unknowns):
+                and s.A.getSize()[0] >= s.stale_min_unknowns and s._stale_spent < s.stale_budget):
             changes = s.changes_since_factorization()
             few = changes is not None and changes <= STALE_MAX_CHANGES
         if few:
             ksp.getPC().setReusePreconditioner(True)  # keep the old factors when applied
             stale = s._stale_ksp
             stale.solve(F, Y)
+            s._stale_spent += stale.getIterationNumber()
             s.record.linear_iterations += stale.getIterationNumber()
             if stale.getConvergedReason() > 0:
                 s.record.stale_solves += 1

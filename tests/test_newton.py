@@ -140,6 +140,28 @@ def test_stale_factorization_preconditions_small_active_set_changes():
     assert np.all(np.abs(values["true"] - values["false"]).max(axis=0) <= 1e-6 * scale)
 
 
+def test_stale_budget_refactorizes_once_stale_solves_cost_a_factorization():
+    """Stale GMRES iterations between two factorizations are bounded by ``stale_budget``: with
+    a budget of 0 every Newton iteration factorizes; with 1 the first stale solve spends it, so
+    the next changed Jacobian is factorized (fewer stale solves than with the default budget);
+    the iterates do not change."""
+    records = {}
+    for budget in (0, 1, None):
+        sim = simulation("six_fractures_mechanics", "time.steps=1")
+        sim.solver.stale_min_unknowns = 0  # this mesh is below the size where stale solves pay
+        if budget is not None:
+            sim.solver.stale_budget = budget
+        records[budget] = sim.run()[0]
+        sim.close()
+    none, one, default = records[0], records[1], records[None]
+    assert none["stale_solves"] == 0 and none["factorizations"] == none["iterations"]
+    assert 1 <= one["stale_solves"] < default["stale_solves"]
+    assert one["factorizations"] > default["factorizations"]
+    for rec in records.values():
+        assert rec["converged"] and rec["iterations"] == none["iterations"]
+        assert rec["factorizations"] + rec["stale_solves"] == rec["iterations"]
+
+
 # -- helpers on the model/solver layer ----------------------------------------------------------
 def model_and_solver(name: str, *overrides: str, solver_class=None):
     from poromech.mechanics import MechanicsModel
