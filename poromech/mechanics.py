@@ -153,6 +153,16 @@ class MechanicsModel:
         self.beta0 = (c.beta_n if c.beta_n is not None else Contact.BETA_N_PER_E * self.young_max,
                       c.beta_t if c.beta_t is not None else Contact.BETA_T_PER_E * self.young_max)
         formulation = c.formulation if self.fm.num_fracture_faces else "none"
+        #: ``(β_n^sm⁰, β_τ^sm⁰)`` (Pa) of ``mixed``, whose complementarity functions take them in
+        #: place of Nitsche's ``β`` (they do not change its solution); None otherwise.
+        self.beta_sm0 = None
+        beta = self.beta0
+        if formulation == "mixed":
+            e = self.young_max
+            sm_n = c.beta_sm_n if c.beta_sm_n is not None else Contact.BETA_SM_N_PER_E * e
+            sm_t = c.beta_sm_t if c.beta_sm_t is not None else Contact.BETA_SM_T_PER_E * e
+            self.beta_sm0 = (sm_n, sm_t)
+            beta = self.beta_sm0
         self.warnings: list[str] = []
         self.coercivity_ratio: float | None = None  # of symmetric Nitsche (θ = 1) only
         if c.theta == 1 and formulation in ("nitsche", "mean_nitsche", "stabilized_mixed"):
@@ -161,8 +171,8 @@ class MechanicsModel:
             formulation=formulation,
             friction=c.friction,
             theta=c.theta,
-            beta_n=fem.Constant(msh, self.beta0[0]) / h,
-            beta_t=fem.Constant(msh, self.beta0[1]) / h,
+            beta_n=fem.Constant(msh, beta[0]) / h,
+            beta_t=fem.Constant(msh, beta[1]) / h,
             friction_coefficient=fc,
             slip_bound=s,
             quadrature_degree=cforms.quadrature_degree(self.scene.degree),

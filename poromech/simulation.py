@@ -120,6 +120,8 @@ class MechanicsSimulation:
             "beta_n": self.model.beta0[0],
             "beta_t": self.model.beta0[1],
         }
+        if self.model.beta_sm0 is not None:
+            out["beta_sm_n"], out["beta_sm_t"] = self.model.beta_sm0
         if self.model.coercivity_ratio is not None:
             out["coercivity_ratio"] = self.model.coercivity_ratio
         if self.model.warnings:
