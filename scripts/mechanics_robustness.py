@@ -88,7 +88,8 @@ def cases() -> list[Case]:
     for ratio in (1e-1, 1, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6):
         b = ratio * E
         out.append(Case(f"β⁰ = {ratio:g} E", "inclined_crack_slip",
-                        [f"contact.beta_n={b}", f"contact.beta_t={b}"],
+                        [f"contact.beta_n={b}", f"contact.beta_t={b}",
+                         f"contact.beta_sm_n={b}", f"contact.beta_sm_t={b}"],
                         note="θ=+1 is not coercive" if ratio <= 1 else ""))
     for F in (0.0, 0.1, 1.0, 10.0):
         ov = [f"parameters.F={F}", f"contact.friction_coefficient={F}"]
