@@ -73,8 +73,9 @@ class ContactParameters:
         formulation: One of :data:`FORMULATIONS`.
         friction: One of :data:`FRICTION_LAWS`.
         theta: Nitsche symmetry parameter θ (-1, 0 or 1).
-        beta_n: ``β_n = β_n⁰ / h_σ`` (Pa/m).
-        beta_t: ``β_τ = β_τ⁰ / h_σ`` (Pa/m).
+        beta_n: ``β_n = β_n⁰ / h_σ`` (Pa/m); for ``mixed`` the ``β_n^sm`` of its
+            complementarity functions, its only use there.
+        beta_t: ``β_τ = β_τ⁰ / h_σ`` (Pa/m); for ``mixed`` ``β_τ^sm``.
         friction_coefficient: Coulomb coefficient ``F`` (Coulomb only).
         slip_bound: Tresca threshold ``s`` (Pa) (Tresca only).
         average_scale: Weight (Pa/m) of the linear equations defining face averages of jumps.

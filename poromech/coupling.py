@@ -182,6 +182,11 @@ class PoromechanicsSimulation:
         s.darcy_seconds += time.perf_counter() - t1
         return self.flow.cell_pressure, self.flow.fracture_pressure
 
+    def _moduli(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Young's modulus (Pa) and Poisson's ratio of the scene at points ``x`` at t = 0."""
+        m = self.scene.material
+        return m.young(x[:, 0], x[:, 1], 0.0), m.poisson(x[:, 0], x[:, 1], 0.0)
+
     def _fixed_stress(self, factor: float) -> np.ndarray:
         """``β_K = factor · b² / K_dr`` per owned cell (1/Pa), ``K_dr = λ + μ`` (plane strain).
 
@@ -191,9 +196,7 @@ class PoromechanicsSimulation:
         """
         if factor == 0 or self.biot == 0 or self.scene.time is None:  # steady: no storage
             return np.zeros(self.nc)
-        x = self.flow.geom.centroid
-        young = self.scene.material.young(x[:, 0], x[:, 1], 0.0)
-        nu = self.scene.material.poisson(x[:, 0], x[:, 1], 0.0)
+        young, nu = self._moduli(self.flow.geom.centroid)
         lam = young * nu / ((1 + nu) * (1 - 2 * nu))
         mu = young / (2 * (1 + nu))
         return factor * self.biot**2 / (lam + mu)
@@ -212,9 +215,7 @@ class PoromechanicsSimulation:
             return None
         f = self.fm.fractures
         a = 0.5 * self.fm.geometry.fracture_lengths()[f.fracture]
-        x = f.midpoint
-        young = self.scene.material.young(x[:, 0], x[:, 1], 0.0)
-        nu = self.scene.material.poisson(x[:, 0], x[:, 1], 0.0)
+        young, nu = self._moduli(f.midpoint)
         return factor * np.pi * (1 - nu**2) * a / young
 
     def _update_flow(self, p_in: np.ndarray, pf_in: np.ndarray) -> None:

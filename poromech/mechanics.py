@@ -150,18 +150,19 @@ class MechanicsModel:
             self._updaters.append(_Updater(s, (c.slip_bound,)))
         young = _cell_values(msh, self.scene.material.young)
         self.young_max = msh.comm.allreduce(float(young.max(initial=0.0)), op=MPI.MAX)
-        self.beta0 = (c.beta_n if c.beta_n is not None else Contact.BETA_N_PER_E * self.young_max,
-                      c.beta_t if c.beta_t is not None else Contact.BETA_T_PER_E * self.young_max)
+        def given_or_default(value: float | None, per_young: float) -> float:
+            return value if value is not None else per_young * self.young_max
+
+        self.beta0 = (given_or_default(c.beta_n, Contact.BETA_N_PER_E),
+                      given_or_default(c.beta_t, Contact.BETA_T_PER_E))
         formulation = c.formulation if self.fm.num_fracture_faces else "none"
         #: ``(β_n^sm⁰, β_τ^sm⁰)`` (Pa) of ``mixed``, whose complementarity functions take them in
         #: place of Nitsche's ``β`` (they do not change its solution); None otherwise.
         self.beta_sm0 = None
         beta = self.beta0
         if formulation == "mixed":
-            e = self.young_max
-            sm_n = c.beta_sm_n if c.beta_sm_n is not None else Contact.BETA_SM_N_PER_E * e
-            sm_t = c.beta_sm_t if c.beta_sm_t is not None else Contact.BETA_SM_T_PER_E * e
-            self.beta_sm0 = (sm_n, sm_t)
+            self.beta_sm0 = (given_or_default(c.beta_sm_n, Contact.BETA_SM_N_PER_E),
+                             given_or_default(c.beta_sm_t, Contact.BETA_SM_T_PER_E))
             beta = self.beta_sm0
         self.warnings: list[str] = []
         self.coercivity_ratio: float | None = None  # of symmetric Nitsche (θ = 1) only
