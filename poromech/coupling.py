@@ -47,6 +47,14 @@ __all__ = ["METHOD_OPTIONS", "PoromechanicsSimulation"]
 log = logging.getLogger("poromech")
 
 #: PETSc defaults of each ``coupling.method`` (prefix ``coupling_``); ``{m}`` is the memory.
+#:
+#: ``newtonkrylov`` differences ``g`` with the Dennis-Schnabel step (``mat_mffd_type ds``),
+#: ``h = ε max(|pᵀa|, u_min ‖a‖₁)/‖a‖²``, a perturbation relative to the pressures. PETSc's
+#: default (``wp``, ``h = ε √(1 + ‖p‖)/‖a‖``) assumes unknowns of order one: with pressures in Pa
+#: (``‖p‖`` ~ 5e6 on the six-fracture scene) it perturbs them by ~1e-11 of their size, where
+#: the response of ``g`` is round-off of the inner solves. With it Newton needed 32 iterations
+#: (247 ``g``) for the first step of that scene and diverged in the second; with ``ds`` 2-3 per
+#: step, 161-166 ``g`` for the 20 steps with every formulation (docs/poromechanics.md).
 METHOD_OPTIONS: dict[str, dict[str, object]] = {
     "anderson": {"snes_type": "anderson", "snes_anderson_m": "{m}", "snes_anderson_beta": 1.0},
     "ngmres": {"snes_type": "ngmres", "snes_ngmres_m": "{m}"},
@@ -55,7 +63,8 @@ METHOD_OPTIONS: dict[str, dict[str, object]] = {
     "composite": {"snes_type": "composite", "snes_composite_type": "multiplicative",
                   "snes_composite_sneses": "nrichardson,anderson",
                   "sub_0_snes_linesearch_type": "basic", "sub_1_snes_anderson_m": "{m}"},
-    "newtonkrylov": {"snes_type": "newtonls", "snes_mf": "", "snes_linesearch_type": "basic",
+    "newtonkrylov": {"snes_type": "newtonls", "snes_mf": "", "mat_mffd_type": "ds",
+                     "snes_linesearch_type": "basic",
                      "ksp_type": "gmres", "pc_type": "none", "ksp_rtol": 1e-2,
                      "ksp_max_it": 30},
     "picard": {"snes_type": "nrichardson", "snes_linesearch_type": "basic"},
@@ -137,6 +146,8 @@ class PoromechanicsSimulation:
         try:
             snes.setFunction(self._residual, self.R)
             snes.setFromOptions()
+            snes.setSolution(self.P)
+            snes.setUp()  # while the options are set: -snes_mf's operator reads mat_mffd_* here
             snes.setConvergenceTest(self._converged)
             snes.setMonitor(self._monitor)
         finally:

@@ -268,3 +268,28 @@ def test_mixed_complementarity_parameter_changes_the_newton_path_not_the_solutio
         for series, other, name in ((a, b, "aperture"), (a, b, "p_f"), (fa, fb, "p_m")):
             x, y = series.fields(k)[name], other.fields(k)[name]
             assert np.abs(x - y).max() <= 1e-4 * np.abs(x).max(), (k, name)
+
+
+def test_newton_krylov_converges_like_newton_to_the_same_fixed_point(tmp_path):
+    """Matrix-free Newton-Krylov on ``p - g(p)`` (the paper's method) differences ``g`` with a
+    step relative to the pressures (``mat_mffd_type ds``): on the three loading steps of the
+    coupled six-fracture scene it converges in at most 3 Newton iterations per step and
+    reaches the fixed point of Anderson. With PETSc's default step (``wp``, made for unknowns of
+    order one) it needed 32 iterations in the first step and diverged in the second."""
+    summaries, runs = {}, {}
+    for method in ("anderson", "newtonkrylov"):
+        scene = load_scene(ROOT / "configs" / "six_fractures.yaml",
+                           ["contact.formulation=mixed", "time.final=300", "time.steps=3",
+                            f"coupling.method={method}"])
+        summaries[method] = run_scene(scene, tmp_path / method)
+        runs[method] = tmp_path / method
+        assert summaries[method]["status"] == "converged"
+        assert len(summaries[method]["solves"]) == 3  # no step cut
+    assert max(r["iterations"] for r in summaries["newtonkrylov"]["solves"]) <= 3
+    a, b = (read_series(runs[k], "fractures") for k in ("anderson", "newtonkrylov"))
+    fa, fb = (read_series(runs[k], "flow") for k in ("anderson", "newtonkrylov"))
+    for k in range(len(a.times)):
+        assert np.array_equal(a.fields(k)["state"], b.fields(k)["state"])
+        for series, other, name in ((a, b, "aperture"), (a, b, "p_f"), (fa, fb, "p_m")):
+            x, y = series.fields(k)[name], other.fields(k)[name]
+            assert np.abs(x - y).max() <= 1e-4 * np.abs(x).max(), (k, name)
