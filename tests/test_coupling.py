@@ -55,6 +55,19 @@ def terzaghi_errors(scene, out, steps=None):
     return err_p, err_u, ph
 
 
+def assert_same_fixed_point(run_a, run_b, rtol=1e-4):
+    """Two coupled runs reach the same contact states, apertures and pressures at every output
+    time (to ``rtol`` of each field's largest value: both meet the fixed-point tolerance)."""
+    a, b = (read_series(r, "fractures") for r in (run_a, run_b))
+    fa, fb = (read_series(r, "flow") for r in (run_a, run_b))
+    assert a.times == b.times
+    for k in range(len(a.times)):
+        assert np.array_equal(a.fields(k)["state"], b.fields(k)["state"]), k
+        for series, other, name in ((a, b, "aperture"), (a, b, "p_f"), (fa, fb, "p_m")):
+            x, y = series.fields(k)[name], other.fields(k)[name]
+            assert np.abs(x - y).max() <= rtol * np.abs(x).max(), (k, name)
+
+
 @pytest.mark.slow
 def test_terzaghi_time_order(tmp_path):
     """Implicit Euler: pressure and settlement errors halve with the time step (order 1)."""
@@ -131,15 +144,7 @@ def test_fracture_fixed_stress_changes_g_not_its_fixed_point(tmp_path):
         for rec in summary["solves"]:
             assert rec["mass_balance"]["relative_residual"] < 1e-8
         runs[factor] = tmp_path / f"f{factor}"
-    a, b = (read_series(runs[f], "fractures") for f in (0.0, 1.0))
-    fa, fb = (read_series(runs[f], "flow") for f in (0.0, 1.0))
-    assert a.times == b.times
-    for k in range(len(a.times)):
-        assert np.array_equal(a.fields(k)["state"], b.fields(k)["state"])
-        for series, name in ((a, "aperture"), (a, "p_f"), (fa, "p_m")):
-            other = b if series is a else fb
-            x, y = series.fields(k)[name], other.fields(k)[name]
-            assert np.abs(x - y).max() <= 1e-4 * np.abs(x).max(), (k, name)
+    assert_same_fixed_point(runs[0.0], runs[1.0])
 
 
 def test_restart_reproduces_the_uninterrupted_run(tmp_path, monkeypatch):
@@ -261,13 +266,7 @@ def test_mixed_complementarity_parameter_changes_the_newton_path_not_the_solutio
     assert summaries["default"]["beta_sm_n"] == 4e9 and summaries["nitsche"]["beta_sm_n"] == 1e12
     its = {k: s["coupling"]["newton_iterations"] for k, s in summaries.items()}
     assert its["default"] < 0.8 * its["nitsche"], its
-    a, b = (read_series(runs[k], "fractures") for k in ("default", "nitsche"))
-    fa, fb = (read_series(runs[k], "flow") for k in ("default", "nitsche"))
-    for k in range(len(a.times)):
-        assert np.array_equal(a.fields(k)["state"], b.fields(k)["state"])
-        for series, other, name in ((a, b, "aperture"), (a, b, "p_f"), (fa, fb, "p_m")):
-            x, y = series.fields(k)[name], other.fields(k)[name]
-            assert np.abs(x - y).max() <= 1e-4 * np.abs(x).max(), (k, name)
+    assert_same_fixed_point(runs["default"], runs["nitsche"])
 
 
 def test_newton_krylov_converges_like_newton_to_the_same_fixed_point(tmp_path):
@@ -286,10 +285,4 @@ def test_newton_krylov_converges_like_newton_to_the_same_fixed_point(tmp_path):
         assert summaries[method]["status"] == "converged"
         assert len(summaries[method]["solves"]) == 3  # no step cut
     assert max(r["iterations"] for r in summaries["newtonkrylov"]["solves"]) <= 3
-    a, b = (read_series(runs[k], "fractures") for k in ("anderson", "newtonkrylov"))
-    fa, fb = (read_series(runs[k], "flow") for k in ("anderson", "newtonkrylov"))
-    for k in range(len(a.times)):
-        assert np.array_equal(a.fields(k)["state"], b.fields(k)["state"])
-        for series, other, name in ((a, b, "aperture"), (a, b, "p_f"), (fa, fb, "p_m")):
-            x, y = series.fields(k)[name], other.fields(k)[name]
-            assert np.abs(x - y).max() <= 1e-4 * np.abs(x).max(), (k, name)
+    assert_same_fixed_point(runs["anderson"], runs["newtonkrylov"])
