@@ -37,6 +37,7 @@ from poromech.flow.output import FlowWriter
 from poromech.flow.problem import TimeStep
 from poromech.flow.setup import flow_properties, problem_from_scene, time_dependent
 from poromech.mesh import FracturedMesh
+from poromech.petsc_options import PrefixedOptions
 from poromech.scene import Scene
 from poromech.simulation import MechanicsSimulation, scalar_row
 from poromech.stepping import StepResult
@@ -138,21 +139,12 @@ class PoromechanicsSimulation:
         merged.update({"snes_max_it": c.max_it, "snes_rtol": c.rtol, "snes_stol": 0.0,
                        "snes_atol": c.atol * np.sqrt(self.N)})
         merged.update(c.petsc)
-        opts = PETSc.Options()
-        pushed = [f"coupling_{k}" for k, v in merged.items()
-                  if v is not None and not opts.hasName(f"coupling_{k}")]
-        for key in pushed:  # options already in the database (command line) win
-            opts[key] = merged[key[len("coupling_"):]]
-        try:
+        self._options = PrefixedOptions("coupling_", merged)
+        with self._options:
             snes.setFunction(self._residual, self.R)
             snes.setFromOptions()
-            snes.setSolution(self.P)
-            snes.setUp()  # while the options are set: -snes_mf's operator reads mat_mffd_* here
-            snes.setConvergenceTest(self._converged)
-            snes.setMonitor(self._monitor)
-        finally:
-            for key in pushed:
-                opts.delValue(key)
+        snes.setConvergenceTest(self._converged)
+        snes.setMonitor(self._monitor)
         self.snes = snes
         self._failure: str | None = None
 
@@ -335,7 +327,8 @@ class PoromechanicsSimulation:
         self._failure = None
         self.P.getArray()[:] = self._guess(t)
         t0 = time.perf_counter()
-        self.snes.solve(None, self.P)
+        with self._options:  # -snes_mf's operator reads mat_mffd_* at the first set-up
+            self.snes.solve(None, self.P)
         reason = self.snes.getConvergedReason()
         self._sync_state()
         s = self._stats

@@ -55,6 +55,8 @@ from dolfinx.fem.petsc import assemble_residual, assign, create_matrix, create_v
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from poromech.petsc_options import PrefixedOptions
+
 __all__ = ["ConvergenceError", "NewtonRecord", "SemiSmoothNewton", "DEFAULT_OPTIONS"]
 
 log = logging.getLogger("poromech")
@@ -244,23 +246,18 @@ class SemiSmoothNewton:
         merged = {**DEFAULT_OPTIONS, **options}
         if self.line_search != "contact":
             merged.update(snes_type="newtonls", snes_linesearch_type=self.line_search)
-        opts = PETSc.Options()
-        pushed = [f"{prefix}{k}" for k, v in merged.items()
-                  if v is not None and not opts.hasName(f"{prefix}{k}")]
-        for key in pushed:  # options already in the database (command line) win
-            opts[key] = merged[key[len(prefix):]]
-        snes.setFunction(self._residual, self.b)
-        snes.setJacobian(self._jacobian, self.A, self.A)
-        snes.setFromOptions()
-        if self.stale_factorization:
-            self._stale_ksp = self._create_stale_ksp(prefix, snes.getKSP().getPC())
+        self._options = PrefixedOptions(prefix, merged)
+        with self._options:
+            snes.setFunction(self._residual, self.b)
+            snes.setJacobian(self._jacobian, self.A, self.A)
+            snes.setFromOptions()
+            if self.stale_factorization:
+                self._stale_ksp = self._create_stale_ksp(prefix, snes.getKSP().getPC())
         if snes.getType() == PETSc.SNES.Type.PYTHON:
             snes.setPythonContext(_Step(self))
         snes.setConvergenceTest(self._converged)
         snes.setMonitor(self._monitor)
         self.A.setOptionsPrefix(f"{prefix}A_")
-        for key in pushed:
-            opts.delValue(key)
         return snes
 
     def destroy(self) -> None:
@@ -421,7 +418,8 @@ class SemiSmoothNewton:
         self._watchdog = 0
         self._forced_reason = None
         assign(self.u, self.x)
-        self.snes.solve(None, self.x)
+        with self._options:  # the factorization reads its options (mat_mumps_*) at set-up
+            self.snes.solve(None, self.x)
         dolfinx.la.petsc._ghost_update(self.x, PETSc.InsertMode.INSERT, PETSc.ScatterMode.FORWARD)
         assign(self.x, self.u)
         r = self.record

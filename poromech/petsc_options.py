@@ -11,6 +11,12 @@ Options reach PETSc from the command line (``-mech_snes_type newtonls``) and fro
   ``*snes_linesearch_type``, ``*pc_factor_mat_solver_type``): PETSc is asked by setting the
   type on a throwaway object, so the answer is that of the linked library.
 
+Defaults and scene options of one solver live in a :class:`PrefixedOptions`: they are in the
+database only while that solver reads them (its ``setFromOptions`` and its solves, where PETSc
+reads the options of set-up: MUMPS' ``mat_mumps_*`` at the first factorization, the ``mat_mffd_*``
+of ``-snes_mf`` at ``SNESSetUp``), so that two solvers with the same prefix never see each
+other's values.
+
 After the run, :func:`report_unused_options` warns once about command-line options that no
 solver read (a misspelled name, or an option for a solver this scene does not build), as PETSc's
 ``-options_left`` does.
@@ -30,6 +36,7 @@ __all__ = [
     "GLOBAL_OPTIONS",
     "PREFIXES",
     "PetscOptionError",
+    "PrefixedOptions",
     "check_petsc_options",
     "report_unused_options",
     "scene_options",
@@ -40,6 +47,37 @@ log = logging.getLogger("poromech")
 
 #: Options prefixes of poromech's solvers (sub-prefixes such as ``mech_stale_`` start with one).
 PREFIXES = ("mech_", "flow_", "coupling_")
+
+class PrefixedOptions:
+    """Options of one PETSc object under its prefix, pushed into the database while it reads them.
+
+    Use ``with options:`` around ``setFromOptions`` and around every solve. Options already in
+    the database (the command line) win and are left alone; the others are removed on exit.
+
+    Args:
+        prefix: Options prefix, ending in ``_``.
+        options: Values without the prefix; None values are left out.
+    """
+
+    def __init__(self, prefix: str, options: Mapping[str, object]):
+        self.prefix = prefix
+        self.options = {k: v for k, v in options.items() if v is not None}
+        self._pushed: list[str] = []
+
+    def __enter__(self) -> PrefixedOptions:
+        db = PETSc.Options()
+        self._pushed = [f"{self.prefix}{k}" for k in self.options
+                        if not db.hasName(f"{self.prefix}{k}")]
+        for key in self._pushed:
+            db[key] = self.options[key[len(self.prefix):]]
+        return self
+
+    def __exit__(self, *exc) -> None:
+        db = PETSc.Options()
+        for key in self._pushed:
+            db.delValue(key)
+        self._pushed = []
+
 
 #: PETSc options that belong to no solver (names, or name prefixes ending in ``_``).
 GLOBAL_OPTIONS = (

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from conftest import ROOT, mpirun
 from mpi4py import MPI
+from petsc4py import PETSc
 
 from poromech import stepping
 from poromech.analytic import terzaghi_parameters, terzaghi_pressure, terzaghi_settlement
@@ -286,3 +287,30 @@ def test_newton_krylov_converges_like_newton_to_the_same_fixed_point(tmp_path):
         assert len(summaries[method]["solves"]) == 3  # no step cut
     assert max(r["iterations"] for r in summaries["newtonkrylov"]["solves"]) <= 3
     assert_same_fixed_point(runs["anderson"], runs["newtonkrylov"])
+
+
+def test_scene_options_read_at_set_up_reach_petsc_and_do_not_linger(tmp_path):
+    """Scene PETSc options that PETSc reads only at set-up reach it: MUMPS' ``mat_mumps_*`` at
+    the first factorization of the contact Newton and of Darcy (the coupling's ``mat_mffd_*``:
+    the Newton-Krylov test). They used to be removed from the options database when the solvers
+    were created, before that, and were silently ignored. Afterwards no scene option is left in
+    the database (another solver with the same prefix would take it for a command-line one)."""
+    from poromech.run import build_mesh, make_simulation
+    from poromech.timing import Timer
+
+    scene = load_scene(ROOT / "configs" / "six_fractures.yaml", [
+        "contact.formulation=mixed", "coupling.method=newtonkrylov",
+        "solver.petsc={mat_mumps_icntl_14: 37}", "flow.petsc={mat_mumps_icntl_14: 41}"])
+    sim = make_simulation(scene, build_mesh(scene, comm), Timer())
+    try:
+        sim.initialize()
+        assert sim.solve(100.0, 100.0).converged
+        mech = sim.mech.solver.snes.getKSP().getPC().getFactorMatrix()
+        flow = sim.flow.solver.ksp.getPC().getFactorMatrix()
+        assert mech.getMumpsIcntl(14) == 37 and flow.getMumpsIcntl(14) == 41
+        db = PETSc.Options()
+        for name in ("mech_mat_mumps_icntl_14", "flow_mat_mumps_icntl_14", "coupling_mat_mffd_err",
+                     "coupling_snes_mf", "mech_pc_type"):
+            assert not db.hasName(name), name
+    finally:
+        sim.close()

@@ -3,7 +3,8 @@
 One defaults table per solver kind (:data:`ITERATIVE_OPTIONS`, :data:`DIRECT_OPTIONS`); the
 scene's ``flow.petsc`` entries merge over it (a ``null`` value removes a default); options
 already in the PETSc database (the command line, ``-flow_ksp_rtol 1e-8``) win through
-``setFromOptions``. The options pushed here are removed from the database afterwards.
+``setFromOptions``. The options are in the database only while the KSP reads them
+(:class:`~poromech.petsc_options.PrefixedOptions`).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from poromech.errors import SolverError
+from poromech.petsc_options import PrefixedOptions
 
 __all__ = [
     "DIRECT_OPTIONS",
@@ -169,17 +171,10 @@ class LinearSolver:
         self.ksp = PETSc.KSP().create(A.getComm())
         self.ksp.setOptionsPrefix(prefix)
         self.ksp.setOperators(A)
-        opts = PETSc.Options()
-        merged = merged_options(kind, options)
-        pushed = [f"{prefix}{k}" for k in merged if not opts.hasName(f"{prefix}{k}")]
-        for key in pushed:  # options already in the database (command line) win
-            opts[key] = merged[key[len(prefix):]]
-        try:
+        self._options = PrefixedOptions(prefix, merged_options(kind, options))
+        with self._options:
             self.ksp.setFromOptions()
-            self.A.setOptionsPrefix(f"{prefix}A_")
-        finally:
-            for key in pushed:
-                opts.delValue(key)
+        self.A.setOptionsPrefix(f"{prefix}A_")
         self.ksp.setConvergenceHistory(length=self.ksp.getTolerances()[3] + 1, reset=True)
         self.test = InitialResidualTest()
         if self.ksp.getType() != PETSc.KSP.Type.PREONLY:
@@ -197,13 +192,14 @@ class LinearSolver:
             SolverError: The KSP did not converge; carries the reason and residual history.
         """
         t0 = time.perf_counter()
-        if self._changed:
-            self.ksp.setOperators(self.A)
-            self.ksp.setUp()
-            self._changed = False
-        t1 = time.perf_counter()
-        self.test.set_scales(b, x)
-        self.ksp.solve(b, x)
+        with self._options:  # the set-up reads its options (mat_mumps_*, pc_gamg_*) here
+            if self._changed:
+                self.ksp.setOperators(self.A)
+                self.ksp.setUp()
+                self._changed = False
+            t1 = time.perf_counter()
+            self.test.set_scales(b, x)
+            self.ksp.solve(b, x)
         comm = x.getComm().tompi4py()
         rec = LinearRecord(
             iterations=int(self.ksp.getIterationNumber()),
