@@ -42,6 +42,8 @@ EXIT_SOLVER = 3
 #: Seconds the ranks that hit an unexpected error wait for the others to report the same before
 #: aborting (an error on all ranks ends cleanly; on some ranks only, the others never arrive).
 AGREE_TIMEOUT = 5.0
+#: Seconds between printing an error on some ranks only and aborting (output forwarding).
+ABORT_DRAIN = 0.2
 
 log = logging.getLogger("poromech")
 
@@ -344,6 +346,9 @@ def _end(comm, code: int, line: str, err: BaseException | None = None) -> int:
         traceback.print_exception(err)
     print(f"poromech: {line} (on rank {comm.rank} only; aborting all ranks)", file=sys.stderr,
           flush=True)
+    # the abort tears down mpirun's forwarding of this rank's output: give the line time to
+    # get through first (without the pause it was occasionally lost: empty stderr)
+    time.sleep(ABORT_DRAIN)
     comm.Abort(code)
     return code  # pragma: no cover
 
