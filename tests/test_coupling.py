@@ -289,6 +289,35 @@ def test_newton_krylov_converges_like_newton_to_the_same_fixed_point(tmp_path):
     assert_same_fixed_point(runs["anderson"], runs["newtonkrylov"])
 
 
+def test_fixed_point_stops_at_the_noise_of_an_ill_conditioned_darcy_solve(tmp_path):
+    """A fracture permeability contrast of 1e8 makes the Darcy solve ill-conditioned: round-off
+    leaves errors of ~1 Pa RMS in the pressures, ``g`` is that noisy, and the relative tolerance
+    asked for less than that (the loading steps stalled and were cut until the run failed). A
+    stagnating iteration now stops once ``|p - g(p)|`` is within the estimated forward error
+    of the last Darcy solve (one refinement step): every step converges without a cut, at the
+    same fixed point as a run stopped at an absolute 1 Pa RMS, and a well-conditioned scene
+    never stops that way."""
+    contrast = "flow.fracture_permeability=where(x < 1.0, 1.0e-2, 1.0e-10)"
+    base = ["time.final=300", "time.steps=3"]
+    six = ROOT / "configs" / "six_fractures.yaml"
+    runs, summaries = {}, {}
+    for name, sets in (("noise", [contrast]), ("atol", [contrast, "coupling.atol=1.0"]),
+                       ("plain", [])):
+        summaries[name] = run_scene(load_scene(six, [*base, *sets]), tmp_path / name)
+        runs[name] = tmp_path / name
+        assert summaries[name]["status"] == "converged", name
+        assert len(summaries[name]["solves"]) == 3, name  # no step cut
+    n = summaries["noise"]["coupling_unknowns"]
+    at_noise = [r for r in summaries["noise"]["solves"] if r["converged_at_noise"]]
+    assert at_noise
+    for r in at_noise:
+        assert r["residuals"][-1] <= r["g_noise"][-1]
+        assert r["residuals"][-1] > 1e-5 * r["residuals"][0]  # the relative tolerance was not met
+        assert r["g_noise"][-1] / np.sqrt(n) < 50.0  # Pa RMS, against pressures of ~1 MPa
+    assert_same_fixed_point(runs["noise"], runs["atol"], rtol=1e-4)
+    assert not any(r["converged_at_noise"] or r["g_noise"] for r in summaries["plain"]["solves"])
+
+
 def test_scene_options_read_at_set_up_reach_petsc_and_do_not_linger(tmp_path):
     """Scene PETSc options that PETSc reads only at set-up reach it: MUMPS' ``mat_mumps_*`` at
     the first factorization of the contact Newton and of Darcy (the coupling's ``mat_mffd_*``:

@@ -209,6 +209,7 @@ class DarcyProblem:
         self.records: list[LinearRecord] = []
         self._storage_dt: float | None = None
         self._guess_set = False
+        self._error: PETSc.Vec | None = None
         self.set_properties(properties)
 
     # -- coefficients (values only) ---------------------------------------------------------
@@ -286,6 +287,22 @@ class DarcyProblem:
         self._read_solution()
         self.records.append(record)
         return record
+
+    def solve_error(self) -> tuple[Array, Array]:
+        """Estimated error of the last solve on the owned cells and fracture faces (Pa).
+
+        One step of iterative refinement (:meth:`LinearSolver.correction`): what round-off in
+        the solve leaves in the pressures, the accuracy to which they are known at all when the
+        system is ill-conditioned (large permeability contrasts). Collective; one solve with
+        the current factorization or one AMG cycle.
+        """
+        if self._error is None:
+            self._error = self.x.duplicate()
+        self.solver.correction(self.b, self.x, self._error)
+        self._error.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        with self._error.localForm() as loc:
+            e = loc.getArray(readonly=True)
+            return e[self.dofs.cell].copy(), e[self.dofs.fracture].copy()
 
     def assemble_matrix(self, dt: float | None = None) -> None:
         """Push new matrix values if coefficients or the storage term changed (collective).

@@ -177,6 +177,7 @@ class LinearSolver:
         self.A.setOptionsPrefix(f"{prefix}A_")
         self.ksp.setConvergenceHistory(length=self.ksp.getTolerances()[3] + 1, reset=True)
         self.test = InitialResidualTest()
+        self._work: PETSc.Vec | None = None
         if self.ksp.getType() != PETSc.KSP.Type.PREONLY:
             self.ksp.setConvergenceTest(self.test)
         self._changed = True
@@ -217,6 +218,22 @@ class LinearSolver:
                 reason=rec.reason, history=rec.history, record=rec.as_dict(),
             )
         return rec
+
+    def correction(self, b: PETSc.Vec, x: PETSc.Vec, out: PETSc.Vec) -> PETSc.Vec:
+        """One step of iterative refinement of the last solve: ``out = P⁻¹ (b - A x)`` (collective).
+
+        With a factorization ``P = A`` this is the error of ``x`` to first order, the forward
+        error of the solve, which round-off sets when ``A`` is ill-conditioned (permeability
+        contrasts); with AMG, an estimate of it. Uses the current preconditioner, no set-up.
+        """
+        if self._work is None:
+            self._work = b.duplicate()
+        r = self._work
+        self.A.mult(x, r)
+        r.aypx(-1.0, b)
+        with self._options:
+            self.ksp.getPC().apply(r, out)
+        return out
 
     def describe(self) -> dict[str, object]:
         """KSP and PC types and tolerances actually used."""
