@@ -77,6 +77,10 @@ DIVERGENCE = 1e3
 #: A fixed-point iteration that does not halve the best residual of the step so far is checked
 #: against the noise of ``g`` (:meth:`PoromechanicsSimulation._noise`).
 STAGNATION = 0.5
+#: Largest noise of ``g``, relative to ``|p|``, at which a step may stop at that noise: above
+#: it the Darcy solve is not accurate enough to trust (a sealed, incompressible fracture), and
+#: the step goes on to fail with the estimate in its message.
+NOISE_LIMIT = 1e-4
 
 #: Smallest aperture, relative to d₀, kept when ``d₀ - [[u]]_n`` would close a face entirely
 #: (interpenetration within the contact tolerance); the faces clamped are counted.
@@ -274,7 +278,8 @@ class PoromechanicsSimulation:
         if stagnating:
             noise = self._noise()
             self._stats.noise.append(noise)
-            if fnorm <= noise:
+            self._stats.pnorm = snes.getSolution().norm()
+            if fnorm <= noise <= NOISE_LIMIT * self._stats.pnorm:
                 self._stats.at_noise = True
                 return R.CONVERGED_FNORM_ABS
         if it >= max_it:
@@ -291,7 +296,10 @@ class PoromechanicsSimulation:
         apertures reproduced to 1e-18 m): the relative tolerance may then ask for a residual
         below what two evaluations of ``g`` at the same ``p`` agree to, and the iteration
         wanders at that level. A stagnating iteration is stopped as converged once
-        ``|p - g(p)|`` is within this estimate (one refinement step of the last Darcy solve).
+        ``|p - g(p)|`` is within this estimate (one refinement step of the last Darcy solve),
+        unless the estimate exceeds :data:`NOISE_LIMIT` ``|p|``: such a Darcy solve is not to be
+        trusted (a sealed fracture with K_m = 1e-20 m² gave estimates of 1e65 on pressures of
+        1e42), and the step then fails with the estimate in its message.
         """
         e_m, e_f = self.flow.solve_error()
         return float(np.sqrt(self.comm.allreduce(e_m @ e_m + e_f @ e_f)))
@@ -365,6 +373,9 @@ class PoromechanicsSimulation:
                                                   self._step)
             return StepResult(True, record)
         why = self._failure or f"{name} after {record['iterations']} iterations"
+        if s.noise and self._failure is None:
+            why += (f" (estimated error of the Darcy solve {s.noise[-1]:.2e}, "
+                    f"{s.noise[-1] / s.pnorm:.1e} of |p|)")
         message = (f"the coupled fixed point did not converge at t = {t:g} s: {why}; "
                    "|p - g(p)| history " + ", ".join(f"{r:.3e}" for r in s.residuals))
         return StepResult(False, record, message, name, list(s.residuals))
@@ -500,6 +511,7 @@ class _Counters:
         self.residuals: list[float] = []
         self.noise: list[float] = []  # estimates of the noise of g, at stagnating iterations
         self.at_noise = False  # converged at the noise of g rather than at the tolerance
+        self.pnorm = np.nan  # |p| when the noise was last estimated
         self.clamped = 0
 
     def add_newton(self, rec) -> None:

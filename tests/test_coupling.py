@@ -14,6 +14,7 @@ from petsc4py import PETSc
 from poromech import stepping
 from poromech.analytic import terzaghi_parameters, terzaghi_pressure, terzaghi_settlement
 from poromech.config import load_scene
+from poromech.errors import SolverError
 from poromech.run import run_scene
 from poromech.xdmf import read_series
 
@@ -316,6 +317,21 @@ def test_fixed_point_stops_at_the_noise_of_an_ill_conditioned_darcy_solve(tmp_pa
         assert r["g_noise"][-1] / np.sqrt(n) < 50.0  # Pa RMS, against pressures of ~1 MPa
     assert_same_fixed_point(runs["noise"], runs["atol"], rtol=1e-4)
     assert not any(r["converged_at_noise"] or r["g_noise"] for r in summaries["plain"]["solves"])
+
+
+def test_an_untrustworthy_darcy_solve_is_not_taken_for_noise(tmp_path):
+    """A nearly impervious matrix seals the fractures: the Darcy solve inside ``g`` has an
+    estimated error of hundreds of times the pressures themselves (which reach 1e42 Pa within a
+    few steps). That is not noise to stop at: the step fails, and the message gives the
+    estimate. Without the limit the cut steps were accepted as converged at the noise of g, and
+    the first step ended with |p - g(p)| = 1e42 Pa."""
+    scene = load_scene(ROOT / "configs" / "six_fractures.yaml",
+                       ["contact.formulation=mixed", "flow.permeability=[1.0e-20, 5.0e-21]",
+                        "time.final=100", "time.steps=1"])
+    with pytest.raises(SolverError, match=r"estimated error of the Darcy solve \S+, \S+ of \|p\|"):
+        run_scene(scene, tmp_path / "sealed")
+    summary = json.loads((tmp_path / "sealed" / "summary.json").read_text())
+    assert summary["status"].startswith("failed")
 
 
 def test_scene_options_read_at_set_up_reach_petsc_and_do_not_linger(tmp_path):
