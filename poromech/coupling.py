@@ -114,11 +114,15 @@ class PoromechanicsSimulation:
         self.biot = scene.material.biot
         self.porosity0 = flow.porosity
         self.nc, self.nf = _owned_cells(fm), len(fm.fractures.facets)
+        self.nf_global = self.comm.allreduce(self.nf)
         self._d0_varies = time_dependent(scene)
         self.d0 = self.flow.properties.aperture.copy()
         self.storage = self.flow.properties.storage.copy()  # 1/M, the physical storage
         self.beta = self._fixed_stress(scene.coupling.stabilization)
-        self.beta_f = self._fracture_fixed_stress(scene.coupling.fracture_stabilization)
+        factor = scene.coupling.fracture_stabilization
+        self._auto_fracture_stabilization = factor is None
+        self.fracture_stabilization_from: float | None = None  # when "auto" switched it on
+        self.beta_f = self._fracture_fixed_stress(factor or 0.0)
         if np.any(self.beta > 0) or self.beta_f is not None:
             self.flow.set_properties(replace(self.flow.properties,
                                              storage=self.storage + self.beta,
@@ -279,6 +283,7 @@ class PoromechanicsSimulation:
             noise = self._noise()
             self._stats.noise.append(noise)
             self._stats.pnorm = snes.getSolution().norm()
+            self._stats.untrusted = not noise <= NOISE_LIMIT * self._stats.pnorm
             if fnorm <= noise <= NOISE_LIMIT * self._stats.pnorm:
                 self._stats.at_noise = True
                 return R.CONVERGED_FNORM_ABS
@@ -362,6 +367,12 @@ class PoromechanicsSimulation:
         t0 = time.perf_counter()
         with self._options:  # -snes_mf's operator reads mat_mffd_* at the first set-up
             self.snes.solve(None, self.P)
+        if self.snes.getConvergedReason() <= 0 and self._switch_on_fracture_stabilization(t):
+            self.reject()
+            self._failure = None
+            self.P.getArray()[:] = self._guess(t)
+            with self._options:
+                self.snes.solve(None, self.P)
         reason = self.snes.getConvergedReason()
         self._sync_state()
         s = self._stats
@@ -379,6 +390,39 @@ class PoromechanicsSimulation:
         message = (f"the coupled fixed point did not converge at t = {t:g} s: {why}; "
                    "|p - g(p)| history " + ", ".join(f"{r:.3e}" for r in s.residuals))
         return StepResult(False, record, message, name, list(s.residuals))
+
+    def _switch_on_fracture_stabilization(self, t: float) -> bool:
+        """Switch ``β_f`` on (factor 1) after a failure with an untrustworthy Darcy solve.
+
+        Only with ``coupling.fracture_stabilization: null``, fractures and time steps, once per
+        run. Untrustworthy: the estimated error of the last Darcy solve in ``g`` exceeds
+        :data:`NOISE_LIMIT` ``|p|`` (fractures sealed by a nearly impervious matrix: without
+        fracture storage their pressure is nearly undetermined). ``β_f`` changes ``g``, not its
+        fixed point (collective).
+        """
+        if (not self._auto_fracture_stabilization or self.fracture_stabilization_from is not None
+                or self.nf_global == 0 or self.scene.time is None
+                or not self.flow.records):
+            return False
+        s = self._stats
+        if not s.noise:
+            s.noise.append(self._noise())
+            s.pnorm = self.P.norm()
+            s.untrusted = not s.noise[-1] <= NOISE_LIMIT * s.pnorm
+        if not s.untrusted:
+            return False
+        self._set_fracture_stabilization(1.0)
+        self.fracture_stabilization_from = t
+        log.warning("the Darcy solve inside g is not to be trusted at t = %g s (estimated error "
+                    "%.2e, %.1e of |p|: fractures sealed by the matrix?); switching on the "
+                    "fracture fixed-stress term (coupling.fracture_stabilization = 1) for the "
+                    "rest of the run and solving the step again", t, s.noise[-1],
+                    s.noise[-1] / s.pnorm)
+        return True
+
+    def _set_fracture_stabilization(self, factor: float) -> None:
+        self.beta_f = self._fracture_fixed_stress(factor)
+        self.flow.set_properties(replace(self.flow.properties, fracture_storage=self.beta_f))
 
     def _sync_state(self) -> None:
         """Make u and the Darcy state those of ``g`` at the final iterate (one more g if not)."""
@@ -446,6 +490,7 @@ class PoromechanicsSimulation:
             **{k: int(sum(r[k] for r in done)) for k in keys},
             "mechanics_seconds": float(sum(r["mechanics_seconds"] for r in done)),
             "darcy_seconds": float(sum(r["darcy_seconds"] for r in done)),
+            "fracture_stabilization_from": self.fracture_stabilization_from,
         }
         summary["flow"] = flow_report(self.flow, [])
 
@@ -463,6 +508,9 @@ class PoromechanicsSimulation:
                                           p0[self.nc:])
             out["time_previous"] = scalar_row(self.comm, t0)
         out["time_current"] = scalar_row(self.comm, self.history[-1][0])
+        if self.fracture_stabilization_from is not None:
+            out["fracture_stabilization_from"] = scalar_row(self.comm,
+                                                            self.fracture_stabilization_from)
         return out
 
     def restore(self, arrays: dict, t: float) -> None:
@@ -484,6 +532,9 @@ class PoromechanicsSimulation:
                                        arrays["p_fracture_previous"][fm.fractures.index]])
             self.history.append((float(arrays["time_previous"][0]), previous))
         self.history.append((float(arrays["time_current"][0]), self._pressures()))
+        if "fracture_stabilization_from" in arrays and self._auto_fracture_stabilization:
+            self._set_fracture_stabilization(1.0)
+            self.fracture_stabilization_from = float(arrays["fracture_stabilization_from"][0])
 
     def close(self) -> None:
         """Free the PETSc objects."""
@@ -512,6 +563,7 @@ class _Counters:
         self.noise: list[float] = []  # estimates of the noise of g, at stagnating iterations
         self.at_noise = False  # converged at the noise of g rather than at the tolerance
         self.pnorm = np.nan  # |p| when the noise was last estimated
+        self.untrusted = False  # the last estimate exceeded NOISE_LIMIT |p|
         self.clamped = 0
 
     def add_newton(self, rec) -> None:

@@ -426,12 +426,14 @@ class Coupling:
                      "convergence for linear Biot (Both et al. 2017); the fixed point is the same",
                      "", min=0, max=10),
     )
-    fracture_stabilization: float = field(
-        default=0.0,
+    fracture_stabilization: float | None = field(
+        default=None,
         metadata=doc("fixed-stress term β_f (p_f - p_in) in the fracture volume balance of the "
                      "Darcy solve of g, β_f = factor · π(1 - ν²) a / E (mean opening per unit "
                      "pressure of a crack of half-length a); for fractures sealed by a nearly "
-                     "impervious matrix; the fixed point is the same", "", min=0, max=10),
+                     "impervious matrix; the fixed point is the same. null: off until a step "
+                     "fails with a Darcy solve in g that is not to be trusted (estimated error "
+                     "above 1e-4 |p|), then 1 for the rest of the run", "", min=0, max=10),
     )
     extrapolate: bool = field(
         default=True,

@@ -319,19 +319,27 @@ def test_fixed_point_stops_at_the_noise_of_an_ill_conditioned_darcy_solve(tmp_pa
     assert not any(r["converged_at_noise"] or r["g_noise"] for r in summaries["plain"]["solves"])
 
 
-def test_an_untrustworthy_darcy_solve_is_not_taken_for_noise(tmp_path):
-    """A nearly impervious matrix seals the fractures: the Darcy solve inside ``g`` has an
-    estimated error of hundreds of times the pressures themselves (which reach 1e42 Pa within a
-    few steps). That is not noise to stop at: the step fails, and the message gives the
-    estimate. Without the limit the cut steps were accepted as converged at the noise of g, and
-    the first step ended with |p - g(p)| = 1e42 Pa."""
+def test_an_untrustworthy_darcy_solve_is_not_noise_and_switches_on_fracture_fixed_stress(
+        tmp_path):
+    """A nearly impervious matrix seals the fractures: without fracture storage the Darcy solve
+    inside ``g`` has an estimated error of hundreds of times the pressures. That is not noise
+    to stop at (without the limit the cut steps were accepted, and the first step ended with
+    |p - g(p)| = 1e42 Pa): with ``coupling.fracture_stabilization: 0`` the step fails and the
+    message gives the estimate; by default (null) the fracture fixed-stress term is switched
+    on, the step is solved again and converges, and the summary says from when."""
+    sets = ["contact.formulation=mixed", "flow.permeability=[1.0e-20, 5.0e-21]",
+            "time={times: [10.0]}"]
     scene = load_scene(ROOT / "configs" / "six_fractures.yaml",
-                       ["contact.formulation=mixed", "flow.permeability=[1.0e-20, 5.0e-21]",
-                        "time.final=100", "time.steps=1"])
+                       [*sets, "coupling.fracture_stabilization=0"])
     with pytest.raises(SolverError, match=r"estimated error of the Darcy solve \S+, \S+ of \|p\|"):
-        run_scene(scene, tmp_path / "sealed")
-    summary = json.loads((tmp_path / "sealed" / "summary.json").read_text())
-    assert summary["status"].startswith("failed")
+        run_scene(scene, tmp_path / "off")
+    summary = run_scene(load_scene(ROOT / "configs" / "six_fractures.yaml", sets),
+                        tmp_path / "auto")
+    assert summary["status"] == "converged"
+    assert summary["coupling"]["fracture_stabilization_from"] == 10.0
+    (rec,) = summary["solves"]
+    assert rec["g_noise"][0] > 1e9  # Pa: the first attempt's estimate, above any pressure here
+    assert rec["reason"] == "CONVERGED_FNORM_RELATIVE" and not rec["converged_at_noise"]
 
 
 def test_scene_options_read_at_set_up_reach_petsc_and_do_not_linger(tmp_path):
