@@ -39,9 +39,14 @@ STEPS_2000 = "{times: [" + ", ".join(str(float(k)) for k in range(1, 21)) + "]}"
 CASES = {
     "K_m 1e-20": (SCENE, ["flow.permeability=[1.0e-20, 5.0e-21]"],
                   "nearly impervious matrix: undrained, pressure builds up"),
+    "… never fracture fixed-stress": (SCENE, ["flow.permeability=[1.0e-20, 5.0e-21]",
+                                             "coupling.fracture_stabilization=0"],
+                                      "the same without β_f, even when the Darcy solve in g is "
+                                      "not to be trusted"),
     "… fracture fixed-stress": (SCENE, ["flow.permeability=[1.0e-20, 5.0e-21]",
                                        "coupling.fracture_stabilization=1"],
-                                "the same with β_f (p_f - p_in) in the fracture balance of g"),
+                                "the same with β_f (p_f - p_in) in the fracture balance of g "
+                                "from the start"),
     "K_m 1e-10": (SCENE, ["flow.permeability=[1.0e-10, 5.0e-11]"],
                   "very permeable matrix: pressure stays at p⁰, stiff diffusion"),
     "Δt = T/2000": (SCENE, [f"time={STEPS_2000}"],
@@ -89,7 +94,14 @@ def cell(summary: dict, out: Path) -> tuple[str, bool]:
     if summary["status"] == "converged":
         c = summary["coupling"]
         mark = "✓" if finite(out) else "✓ but NaN"
-        return f"{mark} {c['g_evaluations']} / {c['newton_iterations']}", True
+        notes = []
+        if c.get("fracture_stabilization_from") is not None:
+            notes.append(f"β_f from t = {c['fracture_stabilization_from']:g} s")
+        noisy = sum(bool(r.get("converged_at_noise")) for r in summary["solves"])
+        if noisy:
+            notes.append(f"{noisy} steps at the noise of g")
+        extra = f" ({'; '.join(notes)})" if notes else ""
+        return f"{mark} {c['g_evaluations']} / {c['newton_iterations']}{extra}", True
     status = summary["status"]
     reason = next((w for w in status.replace(",", " ").replace(":", " ").split()
                    if w.startswith(("DIVERGED", "CONVERGED"))), status[:40])
