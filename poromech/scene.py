@@ -416,8 +416,10 @@ class Coupling:
     )
     max_it: int = field(default=100, metadata=doc("largest number of iterations", "", min=1))
     memory: int = field(
-        default=5, metadata=doc("Anderson/NGMRES history (snes_anderson_m, snes_ngmres_m)", "",
-                                min=1, max=50)
+        default=15,
+        metadata=doc("Anderson/NGMRES history (snes_anderson_m, snes_ngmres_m); the paper's scene"
+                     " converges within 5 iterations per step, slow steps gain from more",
+                     "", min=1, max=50),
     )
     stabilization: float = field(
         default=0.5,
