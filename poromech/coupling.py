@@ -75,7 +75,7 @@ METHOD_OPTIONS: dict[str, dict[str, object]] = {
 DIVERGENCE = 1e3
 
 #: A fixed-point iteration that does not halve the best residual of the step so far is checked
-#: against the noise of ``g`` (:meth:`PoromechanicsSimulation._noise`).
+#: against the noise of ``g`` (:meth:`PoromechanicsSimulation._estimate_noise`).
 STAGNATION = 0.5
 #: Largest noise of ``g``, relative to ``|p|``, at which a step may stop at that noise: above
 #: it the Darcy solve is not accurate enough to trust (a sealed, incompressible fracture), and
@@ -280,11 +280,8 @@ class PoromechanicsSimulation:
         stagnating = it > 0 and fnorm > STAGNATION * self._best
         self._best = min(self._best, fnorm)
         if stagnating:
-            noise = self._noise()
-            self._stats.noise.append(noise)
-            self._stats.pnorm = snes.getSolution().norm()
-            self._stats.untrusted = not noise <= NOISE_LIMIT * self._stats.pnorm
-            if fnorm <= noise <= NOISE_LIMIT * self._stats.pnorm:
+            noise = self._estimate_noise(snes.getSolution().norm())
+            if fnorm <= noise and not self._stats.untrusted:
                 self._stats.at_noise = True
                 return R.CONVERGED_FNORM_ABS
         if it >= max_it:
@@ -293,7 +290,7 @@ class PoromechanicsSimulation:
             return R.DIVERGED_DTOL
         return R.ITERATING
 
-    def _noise(self) -> float:
+    def _estimate_noise(self, pnorm: float) -> float:
         """The accuracy of the last ``g``: the forward error of its Darcy solve, in ``|p - g(p)|``.
 
         Round-off makes ``g`` noisy where the Darcy system is ill-conditioned (a fracture
@@ -307,7 +304,10 @@ class PoromechanicsSimulation:
         1e42), and the step then fails with the estimate in its message.
         """
         e_m, e_f = self.flow.solve_error()
-        return float(np.sqrt(self.comm.allreduce(e_m @ e_m + e_f @ e_f)))
+        noise = float(np.sqrt(self.comm.allreduce(e_m @ e_m + e_f @ e_f)))
+        self._stats.noise.append(noise)
+        self._stats.pnorm = pnorm
+        return noise
 
     def _monitor(self, snes, it, fnorm) -> None:
         self._stats.residuals.append(float(fnorm))
@@ -387,6 +387,9 @@ class PoromechanicsSimulation:
         if s.noise and self._failure is None:
             why += (f" (estimated error of the Darcy solve {s.noise[-1]:.2e}, "
                     f"{s.noise[-1] / s.pnorm:.1e} of |p|)")
+            if s.untrusted and self.scene.coupling.fracture_stabilization == 0:
+                why += (" — the Darcy problem in g is nearly singular (sealed fractures?): set "
+                        "coupling.fracture_stabilization to null or a factor > 0")
         message = (f"the coupled fixed point did not converge at t = {t:g} s: {why}; "
                    "|p - g(p)| history " + ", ".join(f"{r:.3e}" for r in s.residuals))
         return StepResult(False, record, message, name, list(s.residuals))
@@ -406,9 +409,7 @@ class PoromechanicsSimulation:
             return False
         s = self._stats
         if not s.noise:
-            s.noise.append(self._noise())
-            s.pnorm = self.P.norm()
-            s.untrusted = not s.noise[-1] <= NOISE_LIMIT * s.pnorm
+            self._estimate_noise(self.P.norm())
         if not s.untrusted:
             return False
         self._set_fracture_stabilization(1.0)
@@ -563,8 +564,12 @@ class _Counters:
         self.noise: list[float] = []  # estimates of the noise of g, at stagnating iterations
         self.at_noise = False  # converged at the noise of g rather than at the tolerance
         self.pnorm = np.nan  # |p| when the noise was last estimated
-        self.untrusted = False  # the last estimate exceeded NOISE_LIMIT |p|
         self.clamped = 0
+
+    @property
+    def untrusted(self) -> bool:
+        """Whether the last noise estimate exceeded :data:`NOISE_LIMIT` ``|p|``."""
+        return bool(self.noise) and not self.noise[-1] <= NOISE_LIMIT * self.pnorm
 
     def add_newton(self, rec) -> None:
         self.newton.append(rec.iterations)

@@ -231,8 +231,7 @@ class LinearSolver:
         r = self._work
         self.A.mult(x, r)
         r.aypx(-1.0, b)
-        with self._options:
-            self.ksp.getPC().apply(r, out)
+        self.ksp.getPC().apply(r, out)
         return out
 
     def describe(self) -> dict[str, object]:
