@@ -103,10 +103,6 @@ class PoromechanicsSimulation:
     def __init__(self, scene: Scene, fm: FracturedMesh, timer: Timer):
         self.scene, self.fm, self.timer, self.comm = scene, fm, timer, fm.comm
         self.mech = MechanicsSimulation(scene, fm, timer)
-        if scene.coupling.method == "newtonkrylov":
-            # finite differences of g need u to respond to tiny changes of p: the contact Newton
-            # takes at least one step even when its residual is already below the tolerance
-            self.mech.solver.min_iterations = 1
         with timer.phase("flow_setup"):
             self.flow = problem_from_scene(scene, fm)
         self.model = self.mech.model
@@ -143,22 +139,31 @@ class PoromechanicsSimulation:
         self.R = self.P.duplicate()
         self.N = self.P.getSize()
         self._last_eval = self.P.duplicate()
-        snes = PETSc.SNES().create(comm)
-        snes.setOptionsPrefix("coupling_")
         c = self.scene.coupling
+        self.snes, self._options = self._create_snes(c.method, "coupling_", c.petsc)
+        #: Method a failed step is solved again with (``coupling.fallback``), built on first use.
+        self.fallback = None if c.fallback in ("none", c.method) else c.fallback
+        self._fallback: tuple[PETSc.SNES, PrefixedOptions] | None = None
+        self._failure: str | None = None
+
+    def _create_snes(self, method: str, prefix: str,
+                     petsc: dict) -> tuple[PETSc.SNES, PrefixedOptions]:
+        """A SNES on ``p - g(p)`` with the defaults of ``method`` (options prefix ``prefix``)."""
+        c = self.scene.coupling
+        snes = PETSc.SNES().create(self.comm)
+        snes.setOptionsPrefix(prefix)
         merged = {k: (v.format(m=c.memory) if isinstance(v, str) else v)
-                  for k, v in METHOD_OPTIONS[c.method].items()}
+                  for k, v in METHOD_OPTIONS[method].items()}
         merged.update({"snes_max_it": c.max_it, "snes_rtol": c.rtol, "snes_stol": 0.0,
                        "snes_atol": c.atol * np.sqrt(self.N)})
-        merged.update(c.petsc)
-        self._options = PrefixedOptions("coupling_", merged)
-        with self._options:
+        merged.update(petsc)
+        options = PrefixedOptions(prefix, merged)
+        with options:
             snes.setFunction(self._residual, self.R)
             snes.setFromOptions()
         snes.setConvergenceTest(self._converged)
         snes.setMonitor(self._monitor)
-        self.snes = snes
-        self._failure: str | None = None
+        return snes, options
 
     def _split(self, x: PETSc.Vec) -> tuple[np.ndarray, np.ndarray]:
         a = x.getArray(readonly=True)
@@ -363,27 +368,36 @@ class PoromechanicsSimulation:
         self.model.set_time(t)
         self._stats = _Counters()
         self._failure = None
-        self.P.getArray()[:] = self._guess(t)
         t0 = time.perf_counter()
-        with self._options:  # -snes_mf's operator reads mat_mffd_* at the first set-up
-            self.snes.solve(None, self.P)
-        if self.snes.getConvergedReason() <= 0 and self._switch_on_fracture_stabilization(t):
-            self.reject()
-            self._failure = None
-            self.P.getArray()[:] = self._guess(t)
-            with self._options:
-                self.snes.solve(None, self.P)
-        reason = self.snes.getConvergedReason()
+        snes, method = self.snes, self.scene.coupling.method
+        reason = self._attempt(t, snes, self._options, method, retry=False)
+        if reason <= 0 and self._switch_on_fracture_stabilization(t):
+            reason = self._attempt(t, snes, self._options, method)
+        fallback_from = None
+        # a failure of the iteration itself: not of an inner solve (a step cut answers that),
+        # nor of a g made ill-posed by an untrustworthy Darcy solve (no method converges it)
+        if (reason <= 0 and self.fallback is not None and self._failure is None
+                and not self._stats.untrusted):
+            log.warning("the coupled fixed point did not converge at t = %g s with %s (%s after "
+                        "%d g evaluations); solving the step again with %s", t, method,
+                        _REASONS.get(reason, str(reason)), self._stats.evaluations, self.fallback)
+            if self._fallback is None:
+                self._fallback = self._create_snes(self.fallback, "coupling_fallback_", {})
+            fallback_from = len(self._stats.residuals)
+            snes, method = self._fallback[0], self.fallback
+            reason = self._attempt(t, snes, self._fallback[1], method)
         self._sync_state()
         s = self._stats
         name = _REASONS.get(reason, str(reason))
-        record = s.record(name, reason > 0, self.snes.getIterationNumber(),
+        record = s.record(name, reason > 0, s.iterations,
                           self.comm.allreduce(time.perf_counter() - t0, op=MPI.MAX))
+        record["method"] = method
+        record["fallback_from"] = fallback_from
         if reason > 0:
             record["mass_balance"] = mass_balance(self.flow, compute_fluxes(self.flow), t,
                                                   self._step)
             return StepResult(True, record)
-        why = self._failure or f"{name} after {record['iterations']} iterations"
+        why = self._failure or f"{name} after {snes.getIterationNumber()} iterations of {method}"
         if s.noise and self._failure is None:
             why += (f" (estimated error of the Darcy solve {s.noise[-1]:.2e}, "
                     f"{s.noise[-1] / s.pnorm:.1e} of |p|)")
@@ -393,6 +407,25 @@ class PoromechanicsSimulation:
         message = (f"the coupled fixed point did not converge at t = {t:g} s: {why}; "
                    "|p - g(p)| history " + ", ".join(f"{r:.3e}" for r in s.residuals))
         return StepResult(False, record, message, name, list(s.residuals))
+
+    def _attempt(self, t: float, snes: PETSc.SNES, options: PrefixedOptions, method: str,
+                 retry: bool = True) -> int:
+        """Solve the step's fixed point with ``snes`` from the extrapolated pressures.
+
+        A ``retry`` first restores the state of the last accepted step. Returns PETSc's
+        converged reason; the iterations are added to the step's counters.
+        """
+        if retry:
+            self.reject()
+            self._failure = None
+        # finite differences of g need u to respond to tiny changes of p: the contact Newton
+        # takes at least one step even when its residual is already below the tolerance
+        self.mech.solver.min_iterations = int(method == "newtonkrylov")
+        self.P.getArray()[:] = self._guess(t)
+        with options:  # -snes_mf's operator reads mat_mffd_* at the first set-up
+            snes.solve(None, self.P)
+        self._stats.iterations += snes.getIterationNumber()
+        return snes.getConvergedReason()
 
     def _switch_on_fracture_stabilization(self, t: float) -> bool:
         """Switch ``β_f`` on (factor 1) after a failure with an untrustworthy Darcy solve.
@@ -457,7 +490,8 @@ class PoromechanicsSimulation:
         res = r["residuals"] or [float("nan")]
         return (f"step {k + 1}/{n} t={t:g} s: {r['reason']} in {r['iterations']} it, "
                 f"{r['g_evaluations']} g evaluations (|p - g(p)| {res[0]:.2e} -> {res[-1]:.2e}"
-                f"{', the noise of g' if r['converged_at_noise'] else ''}); "
+                f"{', the noise of g' if r['converged_at_noise'] else ''}"
+                f"{', by the fallback ' + r['method'] if r['fallback_from'] is not None else ''}); "
                 f"contact Newton {r['newton_iterations']} it, {r['factorizations']} "
                 f"factorizations; Darcy {r['darcy_iterations']} it")
 
@@ -541,6 +575,8 @@ class PoromechanicsSimulation:
         """Free the PETSc objects."""
         for obj in (self.snes, self.P, self.R, self._last_eval):
             obj.destroy()
+        if self._fallback is not None:
+            self._fallback[0].destroy()
         self.flow.destroy()
         self.mech.close()
 
@@ -553,6 +589,7 @@ class _Counters:
 
     def __init__(self) -> None:
         self.evaluations = 0
+        self.iterations = 0  # fixed-point iterations, over every attempt of the step
         self.newton = []
         self.factorizations = 0
         self.stale = 0

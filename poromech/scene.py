@@ -405,6 +405,13 @@ class Coupling:
         metadata=doc("anderson | ngmres | qn | composite (a Picard sweep, then Anderson) | "
                      "newtonkrylov (matrix-free Newton-GMRES) | picard (plain fixed point)"),
     )
+    fallback: Literal["none", "anderson", "ngmres", "qn", "composite", "newtonkrylov",
+                      "picard"] = field(
+        default="ngmres",
+        metadata=doc("method a step is solved again with, from the same start, when `method` "
+                     "fails on it, before the step is cut (NGMRES keeps a residual-decrease "
+                     "safeguard that Anderson lacks); none, or the method itself: cut at once"),
+    )
     rtol: float = field(
         default=1e-5, metadata=doc("stop when |p - g(p)| <= rtol |p0 - g(p0)| (the paper's 1e-5)",
                                    "", gt=0, lt=1)

@@ -321,6 +321,36 @@ def test_fixed_point_stops_at_the_noise_of_an_ill_conditioned_darcy_solve(tmp_pa
     assert not any(r["converged_at_noise"] or r["g_noise"] for r in summaries["plain"]["solves"])
 
 
+def test_a_step_the_method_fails_on_is_solved_again_by_the_fallback(tmp_path, caplog):
+    """``coupling.fallback``: a step on which ``coupling.method`` fails is solved again from the
+    same start by the fallback method before it is cut. With the paper's g, Picard needs 10
+    iterations for the first step of the six-fracture scene and Anderson 5: Picard limited to 6
+    fails; with the Anderson fallback the step converges without a cut, the summary says by
+    which method and from which iteration, and the result is the fixed point of a plain
+    Anderson run; with ``fallback: none`` the step fails."""
+    sets = ["time={times: [100.0], max_cuts: 0}", "coupling.stabilization=0",
+            "coupling.max_it=6"]
+    six = ROOT / "configs" / "six_fractures.yaml"
+    scene = load_scene(six, [*sets, "coupling.method=picard", "coupling.fallback=none"])
+    with pytest.raises(SolverError, match="DIVERGED_MAX_IT after 6 iterations of picard"):
+        run_scene(scene, tmp_path / "none")
+    with caplog.at_level(logging.WARNING, logger="poromech"):
+        summary = run_scene(load_scene(six, [*sets, "coupling.method=picard",
+                                             "coupling.fallback=anderson"]), tmp_path / "fb")
+    assert "did not converge at t = 100 s with picard (DIVERGED_MAX_IT after 7 g evaluations)" \
+        in caplog.text
+    (rec,) = summary["solves"]
+    assert rec["converged"] and "cuts" not in rec
+    assert rec["method"] == "anderson" and rec["fallback_from"] == 7
+    assert rec["iterations"] == 6 + len(rec["residuals"]) - 8  # Picard's, then Anderson's
+    assert rec["g_evaluations"] == len(rec["residuals"])
+    plain = run_scene(load_scene(six, [*sets, "coupling.method=anderson"]), tmp_path / "plain")
+    (ref,) = plain["solves"]
+    assert ref["method"] == "anderson" and ref["fallback_from"] is None
+    assert rec["residuals"][7:] == pytest.approx(ref["residuals"], rel=1e-6)
+    assert_same_fixed_point(tmp_path / "fb", tmp_path / "plain", rtol=1e-9)
+
+
 def test_an_untrustworthy_darcy_solve_is_not_noise_and_switches_on_fracture_fixed_stress(
         tmp_path, caplog):
     """A nearly impervious matrix seals the fractures: without fracture storage the Darcy solve
