@@ -409,8 +409,10 @@ class Coupling:
                       "picard"] = field(
         default="ngmres",
         metadata=doc("method a step is solved again with, from the same start, when `method` "
-                     "fails on it, before the step is cut (NGMRES keeps a residual-decrease "
-                     "safeguard that Anderson lacks); none, or the method itself: cut at once"),
+                     "fails on it, before the step is cut (NGMRES chooses between the "
+                     "accelerated and the plain fixed-point iterate and restarts when they "
+                     "stagnate; Anderson does neither); none, or the method itself: cut at "
+                     "once. Not after a failed contact or Darcy solve inside g"),
     )
     rtol: float = field(
         default=1e-5, metadata=doc("stop when |p - g(p)| <= rtol |p0 - g(p0)| (the paper's 1e-5)",
