@@ -154,6 +154,7 @@ class PoromechanicsSimulation:
         #: Method a failed step is solved again with (``coupling.fallback``), built on first use.
         self.fallback = None if c.fallback in ("none", c.method) else c.fallback
         self._fallback: tuple[PETSc.SNES, PrefixedOptions] | None = None
+        self._failed_since_accept = False  # an attempt from the last accepted state failed
         self._failure: str | None = None
 
     def _create_snes(self, method: str, prefix: str,
@@ -388,8 +389,9 @@ class PoromechanicsSimulation:
         fallback_from = None
         # a failure of the iteration itself: not of an inner solve (a step cut answers that),
         # nor of a g made ill-posed by an untrustworthy Darcy solve (no method converges it)
+        # once per accepted state: when the fallback fails too, cut sub-steps go without it
         if (reason <= 0 and self.fallback is not None and self._failure is None
-                and not self._stats.untrusted):
+                and not self._stats.untrusted and not self._failed_since_accept):
             log.warning("the coupled fixed point did not converge at t = %g s with %s (%s after "
                         "%d g evaluations); solving the step again with %s", t, method,
                         _REASONS.get(reason, str(reason)), self._stats.evaluations, self.fallback)
@@ -406,6 +408,7 @@ class PoromechanicsSimulation:
                           self.comm.allreduce(time.perf_counter() - t0, op=MPI.MAX))
         record["method"] = method
         record["fallback_from"] = fallback_from
+        self._failed_since_accept = reason <= 0
         if reason > 0:
             record["mass_balance"] = mass_balance(self.flow, compute_fluxes(self.flow), t,
                                                   self._step)
@@ -489,6 +492,7 @@ class PoromechanicsSimulation:
                               else self.flow.fracture_volume(self._step)).copy()
         self._accepted_p = self.flow.p.copy()
         self.history = [*self.history[-1:], (t, self._pressures())]
+        self._failed_since_accept = False
 
     def reject(self) -> None:
         """Back to the last accepted state."""

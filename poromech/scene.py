@@ -412,7 +412,9 @@ class Coupling:
                      "fails on it, before the step is cut (NGMRES chooses between the "
                      "accelerated and the plain fixed-point iterate and restarts when they "
                      "stagnate; Anderson does neither); none, or the method itself: cut at "
-                     "once. Not after a failed contact or Darcy solve inside g"),
+                     "once. Not after a failed contact or Darcy solve inside g; once per "
+                     "accepted state (the sub-steps of a cut go without it until one "
+                     "converges)"),
     )
     rtol: float = field(
         default=1e-5, metadata=doc("stop when |p - g(p)| <= rtol |p0 - g(p0)| (the paper's 1e-5)",

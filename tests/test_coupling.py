@@ -349,6 +349,15 @@ def test_a_step_the_method_fails_on_is_solved_again_by_the_fallback(tmp_path, ca
     assert ref["method"] == "anderson" and ref["fallback_from"] is None
     assert rec["residuals"][7:] == pytest.approx(ref["residuals"], rel=1e-6)
     assert_same_fixed_point(tmp_path / "fb", tmp_path / "plain", rtol=1e-9)
+    # once per accepted state: when the fallback fails too, the cut sub-step goes without it
+    caplog.clear()
+    short = ["time={times: [100.0], max_cuts: 1}", "coupling.stabilization=0",
+             "coupling.max_it=2", "coupling.method=picard", "coupling.fallback=anderson"]
+    with caplog.at_level(logging.WARNING, logger="poromech"), \
+            pytest.raises(SolverError, match="after 2 iterations of picard.*after 1 step cuts"):
+        run_scene(load_scene(six, short), tmp_path / "once")
+    assert caplog.text.count("solving the step again with anderson") == 1
+    assert "retrying with dt=50 s" in caplog.text
 
 
 def test_an_untrustworthy_darcy_solve_is_not_noise_and_switches_on_fracture_fixed_stress(
