@@ -153,8 +153,10 @@ class PoromechanicsSimulation:
         self.snes, self._options = self._create_snes(c.method, "coupling_", c.petsc)
         #: Method a failed step is solved again with (``coupling.fallback``), built on first use.
         self.fallback = None if c.fallback in ("none", c.method) else c.fallback
-        self._fallback: tuple[PETSc.SNES, PrefixedOptions] | None = None
-        self._failed_since_accept = False  # an attempt from the last accepted state failed
+        self._fallback_snes: tuple[PETSc.SNES, PrefixedOptions] | None = None
+        # the last attempt failed: the next one is a cut sub-step of the same state (a converged
+        # attempt clears it, and only converged attempts are accepted)
+        self._failed_since_accept = False
         self._failure: str | None = None
 
     def _create_snes(self, method: str, prefix: str,
@@ -387,20 +389,20 @@ class PoromechanicsSimulation:
         if reason <= 0 and self._switch_on_fracture_stabilization(t):
             reason = self._attempt(t, snes, self._options, method)
         fallback_from = None
-        # a failure of the iteration itself: not of an inner solve (a step cut answers that),
-        # nor of a g made ill-posed by an untrustworthy Darcy solve (no method converges it)
-        # once per accepted state: when the fallback fails too, cut sub-steps go without it
+        # only for a failure of the iteration itself: not of an inner solve (a step cut answers
+        # that), nor of a g made ill-posed by an untrustworthy Darcy solve; and once per accepted
+        # state: when the fallback fails too, the cut sub-steps go without it
         if (reason <= 0 and self.fallback is not None and self._failure is None
                 and not self._stats.untrusted and not self._failed_since_accept):
             log.warning("the coupled fixed point did not converge at t = %g s with %s (%s after "
                         "%d g evaluations); solving the step again with %s", t, method,
                         _REASONS.get(reason, str(reason)), self._stats.evaluations, self.fallback)
-            if self._fallback is None:
-                self._fallback = self._create_snes(self.fallback, "coupling_fallback_",
+            if self._fallback_snes is None:
+                self._fallback_snes = self._create_snes(self.fallback, "coupling_fallback_",
                                                    FALLBACK_OPTIONS.get(self.fallback, {}))
             fallback_from = len(self._stats.residuals)
-            snes, method = self._fallback[0], self.fallback
-            reason = self._attempt(t, snes, self._fallback[1], method)
+            snes, method = self._fallback_snes[0], self.fallback
+            reason = self._attempt(t, snes, self._fallback_snes[1], method)
         self._sync_state()
         s = self._stats
         name = _REASONS.get(reason, str(reason))
@@ -492,7 +494,6 @@ class PoromechanicsSimulation:
                               else self.flow.fracture_volume(self._step)).copy()
         self._accepted_p = self.flow.p.copy()
         self.history = [*self.history[-1:], (t, self._pressures())]
-        self._failed_since_accept = False
 
     def reject(self) -> None:
         """Back to the last accepted state."""
@@ -592,8 +593,8 @@ class PoromechanicsSimulation:
         """Free the PETSc objects."""
         for obj in (self.snes, self.P, self.R, self._last_eval):
             obj.destroy()
-        if self._fallback is not None:
-            self._fallback[0].destroy()
+        if self._fallback_snes is not None:
+            self._fallback_snes[0].destroy()
         self.flow.destroy()
         self.mech.close()
 

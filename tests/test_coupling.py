@@ -375,6 +375,8 @@ def test_an_untrustworthy_darcy_solve_is_not_noise_and_switches_on_fracture_fixe
     with pytest.raises(SolverError, match=r"estimated error of the Darcy solve \S+, \S+ of \|p\|"
                                           r"\) — .* set coupling.fracture_stabilization"):
         run_scene(scene, tmp_path / "off")
+    failed = json.loads((tmp_path / "off" / "summary.json").read_text())
+    assert failed["status"].startswith("failed")
     caplog.clear()
     with caplog.at_level(logging.WARNING, logger="poromech"):
         summary = run_scene(load_scene(ROOT / "configs" / "six_fractures.yaml", sets),
