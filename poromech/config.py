@@ -302,6 +302,13 @@ class _Builder:
         self.parameters = dict(parameters)
 
     def build(self, value: Any, tp: Any, path: str, meta: Mapping | None = None) -> Any:
+        if meta and _is_list_type(tp) and value is not None and not isinstance(value, list | tuple):
+            if _list_of(tp) is Expression and isinstance(value, int | float | str) \
+                    and not isinstance(value, bool):
+                value = [value]  # one expression where a list of them is asked: [value]
+            else:
+                raise ConfigError(f"scene key '{path}' = {_fmt(value)} must be a list: "
+                                  f"{meta['doc']}")
         out = self._convert(value, tp, path)
         if meta:
             self._check_range(out, path, meta)
@@ -417,6 +424,24 @@ class _Builder:
         if not isinstance(value, int | float) or isinstance(value, bool):
             return
         _check_number(value, path, meta)
+
+
+def _list_type(tp: Any) -> Any:
+    """The ``tuple[...]`` type of a field, Optional unwrapped, or None."""
+    if typing.get_origin(tp) in (typing.Union, types.UnionType):
+        inner = [a for a in typing.get_args(tp) if a is not type(None)]
+        tp = inner[0] if len(inner) == 1 else None
+    return tp if typing.get_origin(tp) is tuple else None
+
+
+def _is_list_type(tp: Any) -> bool:
+    return _list_type(tp) is not None
+
+
+def _list_of(tp: Any) -> Any:
+    """The entry type of a variable-length ``tuple[X, ...]`` field, or None."""
+    args = typing.get_args(_list_type(tp))
+    return args[0] if len(args) == 2 and args[1] is Ellipsis else None
 
 
 _RULES = {

@@ -322,7 +322,8 @@ class Flow:
     """Single-phase Darcy flow in matrix and fractures (HFV, DESIGN §5)."""
 
     permeability: tuple[Expr, ...] = field(
-        metadata=doc("matrix permeability: [k] or [k_xx, k_yy] or [k_xx, k_xy, k_yy]", "m²")
+        metadata=doc("matrix permeability: [k] (or k) or [k_xx, k_yy] or [k_xx, k_xy, k_yy]",
+                     "m²")
     )
     viscosity: float = field(default=1e-3, metadata=doc("fluid viscosity η", "Pa·s", gt=0))
     aperture: Expr = field(

@@ -46,6 +46,8 @@ def _error(raw) -> str:
          ["boundary_conditions.1.boundary", "roof", "bottom"]),
         ({"boundary_conditions": [{"boundary": "top", "traction": [0, -1]}]},
          ["boundary_conditions", "rigid body"]),
+        ({"boundary_conditions": {"boundary": "top", "displacement": [0, 0]}},
+         ["'boundary_conditions' = {", "must be a list: mechanical boundary conditions"]),
         ({"boundary_conditions": [{"boundary": "top", "displacement": [0, 0],
                                    "traction": [0, 0]}]}, ["exactly one"]),
     ],
@@ -153,6 +155,20 @@ def _doc_script():
 def test_scene_reference_is_up_to_date():
     assert (ROOT / "docs" / "scene_schema.md").read_text() == _doc_script().render(), \
         "docs/scene_schema.md is stale: run python scripts/make_scene_doc.py"
+
+
+def test_one_permeability_is_the_isotropic_list():
+    """``permeability: k`` is ``[k]``: one value where a list of expressions is asked."""
+    base = mechanics_scene(time={"final": 1.0, "steps": 1})
+    base["flow"] = {"permeability": 1e-12, "boundary_conditions": [{"boundary": "left",
+                                                                    "pressure": 0.0}]}
+    perm = scene_from_dict(base).flow.permeability
+    assert len(perm) == 1 and perm[0].value() == 1e-12
+    base["flow"]["permeability"] = "2e-12 * (1 + x)"
+    assert scene_from_dict(base).flow.permeability[0](np.array([1.0]), np.array([0.0]), 0.0) \
+        == pytest.approx(4e-12)
+    base["flow"]["permeability"] = {"k": 1}
+    assert "'flow.permeability' = {" in _error(base) and "must be a list: matrix" in _error(base)
 
 
 def test_every_documented_key_is_accepted():
