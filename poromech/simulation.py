@@ -77,6 +77,9 @@ class MechanicsSimulation:
         records: One JSON-ready record per completed step (filled by :meth:`run`).
     """
 
+    counters = ("iterations", "linear_iterations", "factorizations", "stale_solves",
+                "jacobian_reuses", "residual_evaluations", "time_assembly", "time_linear")
+
     def __init__(self, scene: Scene, fm: FracturedMesh, timer: Timer):
         from poromech.mechanics import MechanicsModel
         from poromech.newton import SemiSmoothNewton

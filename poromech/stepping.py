@@ -10,7 +10,8 @@ For every step ``tⁿ⁻¹ → tⁿ`` the loop
    (``physics.reject()``) and the step is retried as two halves, then quarters, ... up to
    ``time.max_cuts`` times (sub-steps are solved and accepted but not written); when the last
    cut fails, the run stops with :class:`~poromech.errors.SolverError` (exit status 3), every
-   output of the earlier steps being kept;
+   output of the earlier steps being kept. The record of a cut step counts the work of all its
+   attempts (``Physics.counters`` summed over them), and lists them under ``attempts``;
 2. writes the output of the step just solved (every ``output.every`` steps and the last one),
    *before* accepting it, so that contact states and slip rates describe that step;
 3. accepts the step (``physics.accept(t)``: the solved state becomes the reference of the next
@@ -27,7 +28,7 @@ import logging
 import signal
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Protocol
 
 import numpy as np
@@ -69,6 +70,9 @@ class StepResult:
 
 class Physics(Protocol):
     """What the time loop needs from a physics (every method collective)."""
+
+    #: Entries of a step record that add up over the attempts of a cut step (solver work).
+    counters: tuple[str, ...]
 
     def initialize(self) -> dict | None:
         """Set up the state at the initial time; a record of the solve, or None."""
@@ -158,7 +162,11 @@ def _advance(physics: Physics, t0: float, t1: float, max_cuts: int,
         t = t1 if t0 + dt >= t1 * (1 - 1e-12) else t0 + dt
         result = physics.solve(t, t - t0)
         if result.converged and t == t1:
-            return result, attempts
+            if not attempts:
+                return result, attempts
+            attempts.append({"time": t, "converged": True, **_brief(result.record)})
+            return replace(result, record=_totals(result.record, attempts,
+                                                  physics.counters)), attempts
         if result.converged:
             attempts.append({"time": t, "converged": True, **_brief(result.record)})
             physics.accept(t)
@@ -169,10 +177,17 @@ def _advance(physics: Physics, t0: float, t1: float, max_cuts: int,
         cuts += 1
         if cuts > max_cuts:
             raise SolverError(f"{result.message} (after {max_cuts} step cuts)", result.reason,
-                              result.history, {**result.record, "attempts": attempts})
+                              result.history,
+                              {**_totals(result.record, attempts, physics.counters),
+                               "attempts": attempts})
         dt *= 0.5
         log.warning("step to t=%g s failed (%s); retrying with dt=%g s (cut %d of %d)",
                     t, result.message.split(";")[0], dt, cuts, max_cuts)
+
+
+def _totals(record: dict, attempts: list[dict], counters: tuple[str, ...]) -> dict:
+    """``record`` with each of ``counters`` summed over ``attempts`` (which include it)."""
+    return {**record, **{k: sum(a[k] for a in attempts) for k in counters if k in record}}
 
 
 def _brief(record: dict) -> dict:
@@ -228,7 +243,8 @@ def run_steps(
             entry["cuts"] = sum(not a["converged"] for a in attempts)
             entry["attempts"] = attempts
         records.append(entry)
-        log.info("%s, %.2f s", physics.progress(k, len(times), t, result), wall)
+        cut = f" ({len(attempts)} attempts, {entry['cuts']} cut; counts of all)" if attempts else ""
+        log.info("%s%s, %.2f s", physics.progress(k, len(times), t, result), cut, wall)
         on_step(k, t)
         t_prev = t
 

@@ -71,6 +71,8 @@ class FlowSimulation:
         timer: Wall-time accounting.
     """
 
+    counters = ("iterations", "seconds", "setup_seconds")
+
     def __init__(self, scene: Scene, fm, timer):
         self.scene, self.fm, self.timer = scene, fm, timer
         with timer.phase("flow_setup"):
