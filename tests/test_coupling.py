@@ -360,6 +360,29 @@ def test_a_step_the_method_fails_on_is_solved_again_by_the_fallback(tmp_path, ca
     assert "retrying with dt=50 s" in caplog.text
 
 
+def test_a_contact_solve_that_fails_inside_g_is_continued_from_the_last_converged_pressures(
+        tmp_path, monkeypatch, caplog):
+    """Injection with pointwise Nitsche: in the step where the fracture opens (20 -> 30 s), the
+    contact Newton stalls at the extrapolated pressure of the second fixed-point iterate. Solved
+    again from the unknowns and pressures of the last converged contact solve, in two steps of
+    pressure, it converges, and so does the step, without a cut; the continuation's Newton
+    iterations count in that g. Without it the step fails."""
+    from poromech import coupling
+
+    sets = ["contact.formulation=nitsche", "time={times: [20.0, 30.0], max_cuts: 0}"]
+    with caplog.at_level(logging.DEBUG, logger="poromech"):
+        summary = run_scene(load_scene(INJECTION, sets), tmp_path / "continued")
+    assert caplog.text.count("continuation from the last converged pressures") == 1
+    rec = summary["solves"][1]
+    assert rec["converged"] and "cuts" not in rec
+    assert rec["g_evaluations"] == rec["darcy_solves"] == len(rec["newton_per_evaluation"])
+    assert rec["newton_iterations"] == sum(rec["newton_per_evaluation"])
+    assert max(rec["newton_per_evaluation"]) > 20  # the failed solve and its continuation
+    monkeypatch.setattr(coupling, "CONTINUATION_STEPS", 0)
+    with pytest.raises(SolverError, match="contact Newton did not converge inside the fixed"):
+        run_scene(load_scene(INJECTION, sets), tmp_path / "plain")
+
+
 def test_an_untrustworthy_darcy_solve_is_not_noise_and_switches_on_fracture_fixed_stress(
         tmp_path, caplog):
     """A nearly impervious matrix seals the fractures: without fracture storage the Darcy solve
