@@ -225,8 +225,7 @@ class PoromechanicsSimulation:
                                 f"({rec.reason} after {rec.iterations} iterations)"
                                 if len(recs) > 1 else ""))
             return p_m, p_f
-        self._contact_start = (p_m.copy(), p_f.copy(),
-                               [f.x.array.copy() for f in self.model.unknowns])
+        self._contact_start = self._contact_state(p_m, p_f)
         self._update_flow(p_m, p_f)
         try:
             with self.timer.phase("flow_solve"):
@@ -238,6 +237,10 @@ class PoromechanicsSimulation:
         s.darcy_solves += 1
         s.darcy_seconds += time.perf_counter() - t1
         return self.flow.cell_pressure, self.flow.fracture_pressure
+
+    def _contact_state(self, p_m: np.ndarray, p_f: np.ndarray) -> tuple:
+        """Pressures and a copy of the contact unknowns solved at them (a continuation start)."""
+        return p_m.copy(), p_f.copy(), [f.x.array.copy() for f in self.model.unknowns]
 
     def _continuation(self, p_m: np.ndarray, p_f: np.ndarray) -> list:
         """The contact problem at ``p`` solved again from the last pressures it converged at.
@@ -407,9 +410,8 @@ class PoromechanicsSimulation:
         self.mech.accept(0.0)
         self._accepted_p = pb.p.copy()
         self.history = [(0.0, self._pressures())]
-        self._contact_start = self._accepted_start = (
-            pb.cell_pressure.copy(), pb.fracture_pressure.copy(),
-            [f.x.array.copy() for f in self.model.unknowns])
+        self._contact_start = self._accepted_start = self._contact_state(
+            pb.cell_pressure, pb.fracture_pressure)
         log.info("initial equilibrium under p0: %d Newton iterations", rec.iterations)
         return {"iterations": rec.iterations, "reason": rec.reason}
 
@@ -636,6 +638,10 @@ class PoromechanicsSimulation:
                                        arrays["p_fracture_previous"][fm.fractures.index]])
             self.history.append((float(arrays["time_previous"][0]), previous))
         self.history.append((float(arrays["time_current"][0]), self._pressures()))
+        # the contact state of the last step (at its output pressures: its input ones are not
+        # kept, and differ by the fixed-point tolerance)
+        self._contact_start = self._accepted_start = self._contact_state(
+            pb.cell_pressure, pb.fracture_pressure)
         if "fracture_stabilization_from" in arrays and self._auto_fracture_stabilization:
             self._set_fracture_stabilization(1.0)
             self.fracture_stabilization_from = float(arrays["fracture_stabilization_from"][0])
