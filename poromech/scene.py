@@ -426,7 +426,12 @@ class Coupling:
         metadata=doc("or when |p - g(p)| / sqrt(N) <= atol (a step that barely changes p)", "Pa",
                      min=0),
     )
-    max_it: int = field(default=100, metadata=doc("largest number of iterations", "", min=1))
+    max_it: int = field(
+        default=300,
+        metadata=doc("largest number of iterations of an attempt (the paper's scene needs at most "
+                     "9 per step; slow steps of extreme cases up to 190, e.g. a sealed fracture "
+                     "network; divergence is detected earlier)", "", min=1),
+    )
     memory: int = field(
         default=15,
         metadata=doc("Anderson/NGMRES history (snes_anderson_m, snes_ngmres_m); the paper's scene"
