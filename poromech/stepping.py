@@ -187,7 +187,7 @@ def _advance(physics: Physics, t0: float, t1: float, max_cuts: int,
 
 def _totals(record: dict, attempts: list[dict], counters: tuple[str, ...]) -> dict:
     """``record`` with each of ``counters`` summed over ``attempts`` (which include it)."""
-    return {**record, **{k: sum(a[k] for a in attempts) for k in counters if k in record}}
+    return {**record, **{k: sum(a.get(k, 0) for a in attempts) for k in counters if k in record}}
 
 
 def _brief(record: dict) -> dict:
