@@ -302,7 +302,8 @@ class _Builder:
         self.parameters = dict(parameters)
 
     def build(self, value: Any, tp: Any, path: str, meta: Mapping | None = None) -> Any:
-        if meta and _is_list_type(tp) and value is not None and not isinstance(value, list | tuple):
+        if (meta and _list_type(tp) is not None and value is not None
+                and not isinstance(value, list | tuple)):
             if _list_of(tp) is Expression and isinstance(value, int | float | str) \
                     and not isinstance(value, bool):
                 value = [value]  # one expression where a list of them is asked: [value]
@@ -432,10 +433,6 @@ def _list_type(tp: Any) -> Any:
         inner = [a for a in typing.get_args(tp) if a is not type(None)]
         tp = inner[0] if len(inner) == 1 else None
     return tp if typing.get_origin(tp) is tuple else None
-
-
-def _is_list_type(tp: Any) -> bool:
-    return _list_type(tp) is not None
 
 
 def _list_of(tp: Any) -> Any:

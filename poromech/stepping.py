@@ -161,14 +161,13 @@ def _advance(physics: Physics, t0: float, t1: float, max_cuts: int,
     while True:
         t = t1 if t0 + dt >= t1 * (1 - 1e-12) else t0 + dt
         result = physics.solve(t, t - t0)
-        if result.converged and t == t1:
-            if not attempts:
+        if result.converged:
+            if t == t1 and not attempts:
                 return result, attempts
             attempts.append({"time": t, "converged": True, **_brief(result.record)})
-            return replace(result, record=_totals(result.record, attempts,
-                                                  physics.counters)), attempts
-        if result.converged:
-            attempts.append({"time": t, "converged": True, **_brief(result.record)})
+            if t == t1:
+                return replace(result, record=_totals(result.record, attempts,
+                                                      physics.counters)), attempts
             physics.accept(t)
             t0 = t
             continue
