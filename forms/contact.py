@@ -54,6 +54,7 @@ __all__ = [
     "complementarity_arguments",
     "contact_measure",
     "displacement_residual",
+    "multiplier_mass",
     "multiplier_residual",
     "multiplier_size",
     "pointwise",
@@ -230,6 +231,11 @@ def multiplier_residual(fk: FractureKinematics, p: ContactParameters, u, lam, mu
     if p.tangential:
         form += (lm[1] + ball_projection(pt, s)) * mm[1]
     return form * contact_measure(p, dG)
+
+
+def multiplier_mass(p: ContactParameters, lam, mu, dG):
+    """``∫ λ·μ`` on the fracture faces: the multiplier rows of the condensation matrix."""
+    return ufl.inner(lam, mu) * contact_measure(p, dG)
 
 
 def averages_residual(fk: FractureKinematics, p: ContactParameters, u, avg, q, dG):

@@ -116,7 +116,8 @@ class PoromechanicsSimulation:
         timer: Wall-time accounting.
     """
 
-    counters = ("iterations", "g_evaluations", "newton_iterations", "factorizations",
+    counters = ("iterations", "g_evaluations", "newton_iterations", "face_iterations",
+                "factorizations",
                 "stale_solves", "darcy_iterations", "darcy_solves", "mechanics_seconds",
                 "darcy_seconds", "solve_seconds")
 
@@ -559,11 +560,12 @@ class PoromechanicsSimulation:
         """One line per step: fixed-point and inner iteration counts."""
         r = result.record
         res = r["residuals"] or [float("nan")]
+        face = f", face Newton {r['face_iterations']} it" if r["face_iterations"] else ""
         return (f"step {k + 1}/{n} t={t:g} s: {r['reason']} in {r['iterations']} it, "
                 f"{r['g_evaluations']} g evaluations (|p - g(p)| {res[0]:.2e} -> {res[-1]:.2e}"
                 f"{', the noise of g' if r['converged_at_noise'] else ''}"
                 f"{', by the fallback ' + r['method'] if r['fallback_from'] is not None else ''}); "
-                f"contact Newton {r['newton_iterations']} it, {r['factorizations']} "
+                f"contact Newton {r['newton_iterations']} it{face}, {r['factorizations']} "
                 f"factorizations; Darcy {r['darcy_iterations']} it")
 
     # -- output ----------------------------------------------------------------------------
@@ -587,13 +589,13 @@ class PoromechanicsSimulation:
 
     def finish(self, summary: dict) -> None:
         """Totals of the fixed point and the flow report."""
-        keys = ("g_evaluations", "iterations", "newton_iterations", "factorizations",
-                "darcy_iterations", "darcy_solves")
+        keys = ("g_evaluations", "iterations", "newton_iterations", "face_iterations",
+                "factorizations", "darcy_iterations", "darcy_solves")
         done = [r for r in self.records if "g_evaluations" in r]
         summary["coupling"] = {
             "method": self.scene.coupling.method,
             "rtol": self.scene.coupling.rtol,
-            **{k: int(sum(r[k] for r in done)) for k in keys},
+            **{k: int(sum(r.get(k, 0) for r in done)) for k in keys},
             "mechanics_seconds": float(sum(r["mechanics_seconds"] for r in done)),
             "darcy_seconds": float(sum(r["darcy_seconds"] for r in done)),
             "fracture_stabilization_from": self.fracture_stabilization_from,
@@ -666,6 +668,7 @@ class _Counters:
         self.evaluations = 0
         self.iterations = 0  # fixed-point iterations, over every attempt of the step
         self.newton = []
+        self.face = 0  # iterations of the condensed face Newton (poromech.condensed)
         self.factorizations = 0
         self.stale = 0
         self.darcy_iterations = 0
@@ -688,6 +691,7 @@ class _Counters:
         self.newton.append(sum(r.iterations for r in recs))
         self.factorizations += sum(r.factorizations for r in recs)
         self.stale += sum(r.stale_solves for r in recs)
+        self.face += sum(r.face_iterations for r in recs)
 
     def record(self, reason: str, converged: bool, iterations: int, seconds: float) -> dict:
         return {
@@ -698,6 +702,7 @@ class _Counters:
             "residuals": self.residuals,
             "newton_iterations": int(sum(self.newton)),
             "newton_per_evaluation": self.newton,
+            "face_iterations": self.face,
             "factorizations": self.factorizations,
             "stale_solves": self.stale,
             "darcy_iterations": self.darcy_iterations,

@@ -532,6 +532,21 @@ class MechanicsModel:
         sliding = np.abs(tt) >= (1.0 - SLIP_TOLERANCE) * bound
         return np.where(tn < 0.0, np.where(sliding, 2, 1), 0).astype(np.int8)
 
+    def condensation_jacobian(self) -> list[list[fem.Form | None]]:
+        """The Jacobian with its multiplier rows replaced by the face mass matrix (``mixed``).
+
+        A constant matrix (:mod:`poromech.condensed`); compiled at the first call.
+        """
+        if getattr(self, "_condensation", None) is None:
+            V = self.lam.function_space
+            mass = cforms.multiplier_mass(self.params, ufl.TrialFunction(V)("+"),
+                                          ufl.TestFunction(V)("+"), self.dG)
+            rows = [list(row) for row in self.J]
+            rows[1] = [None] * len(rows[1])
+            rows[1][1] = fem.form(mass, entity_maps=self.entity_maps or None)
+            self._condensation = rows
+        return self._condensation
+
     def dof_count(self) -> int:
         """Global number of unknowns of the nonlinear system."""
         return sum(f.function_space.dofmap.index_map.size_global

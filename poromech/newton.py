@@ -135,6 +135,7 @@ class NewtonRecord:
     linear_iterations: int = 0
     factorizations: int = 0
     stale_solves: int = 0
+    face_iterations: int = 0
     jacobian_reuses: int = 0
     residual_evaluations: int = 0
     time_assembly: float = 0.0
@@ -235,9 +236,17 @@ class SemiSmoothNewton:
         self._factor_states = None  # active set of the factorized Jacobian
         self._assembled = True  # the matrix was assembled since the last factorization
         self.states_determine_jacobian = False
+        #: A :class:`~poromech.condensed.CondensedContact` that computes each solve's start
+        #: (set by the owner), or None.
+        self.condensed = None
         self.prefix = prefix
         self.snes = self._create_snes(prefix, options or {})
         self.record = NewtonRecord()
+
+    @property
+    def petsc_options(self) -> dict:
+        """This solver's options without prefix (defaults, formulation, scene)."""
+        return dict(self._options.options)
 
     # -- PETSc objects ----------------------------------------------------------------------
     def _create_snes(self, prefix: str, options: dict) -> PETSc.SNES:
@@ -262,6 +271,8 @@ class SemiSmoothNewton:
 
     def destroy(self) -> None:
         """Free PETSc objects."""
+        if self.condensed is not None:
+            self.condensed.destroy()
         for obj in (self.snes, self.A, self.b, self.x, self._trial, self._trial_f,
                     self._cache_x, self._cache_f, self._stale_ksp, self._scale, self._scaled):
             if obj is not None:
@@ -418,8 +429,14 @@ class SemiSmoothNewton:
         self._watchdog = 0
         self._forced_reason = None
         assign(self.u, self.x)
-        with self._options:  # the factorization reads its options (mat_mumps_*) at set-up
-            self.snes.solve(None, self.x)
+        min_iterations = self.min_iterations
+        if self.condensed is not None and self._condensed_start():
+            self.min_iterations = 0  # the face Newton has already responded to the data
+        try:
+            with self._options:  # the factorization reads its options (mat_mumps_*) at set-up
+                self.snes.solve(None, self.x)
+        finally:
+            self.min_iterations = min_iterations
         dolfinx.la.petsc._ghost_update(self.x, PETSc.InsertMode.INSERT, PETSc.ScatterMode.FORWARD)
         assign(self.x, self.u)
         r = self.record
@@ -429,6 +446,38 @@ class SemiSmoothNewton:
         r.iterations = self.snes.getIterationNumber()
         r.linear_iterations += self.snes.getLinearSolveIterations()
         return r
+
+    def _condensed_start(self) -> bool:
+        """Start from the condensed solution (:mod:`poromech.condensed`); True if it converged.
+
+        The residual at the current unknowns sets the reference norm exactly as the first
+        iteration of the regular Newton would; the face problem is solved to a fraction of the
+        regular tolerance, which the regular Newton then checks with an assembled residual.
+        """
+        from poromech.condensed import SAFETY
+
+        t0 = time.perf_counter()
+        self._residual(self.snes, self.x, self.b)
+        f0 = self.b.norm()
+        if not np.isfinite(f0):  # the regular Newton reports it
+            return False
+        self.reference_norm = max(self.reference_norm, f0)
+        x0 = self.x.copy()
+        t1 = time.perf_counter()
+        rtol = self.snes.getTolerances()[0]
+        out = self.condensed.solve(self.x, self.b, SAFETY * rtol * self.reference_norm,
+                                   self.min_iterations)
+        r = self.record
+        r.face_iterations += out["iterations"]
+        if not out["converged"]:
+            x0.copy(self.x)
+            log.debug("%scondensed face Newton did not converge (%d iterations, |R| %s); "
+                      "regular Newton from the start", self.prefix, out["iterations"],
+                      ", ".join(f"{v:.3e}" for v in out["residuals"][-5:]))
+        x0.destroy()
+        r.time_linear += time.perf_counter() - t1
+        r.time_assembly += t1 - t0
+        return bool(out["converged"])
 
 
 class _StalePC:

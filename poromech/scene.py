@@ -277,6 +277,12 @@ class Solver:
         metadata=doc("after few contact-state changes, try GMRES preconditioned by the last "
                      "factorization before refactorizing"),
     )
+    condensation: bool = field(
+        default=True,
+        metadata=doc("mixed, degree >= 2: solve each contact problem condensed onto the face "
+                     "unknowns (one factorization of the elastic operator for the run), then "
+                     "check it with the regular Newton"),
+    )
     petsc: dict[str, str | float | int | bool | None] = field(
         default_factory=dict,
         metadata=doc("PETSc options for the mechanics solver, without the mech_ prefix"),

@@ -13,6 +13,7 @@ from pathlib import Path
 import dolfinx_solver  # noqa: F401
 
 import numpy as np
+from petsc4py import PETSc
 
 from poromech.checkpoint import (
     cell_dof_rows,
@@ -77,7 +78,8 @@ class MechanicsSimulation:
         records: One JSON-ready record per completed step (filled by :meth:`run`).
     """
 
-    counters = ("iterations", "linear_iterations", "factorizations", "stale_solves",
+    counters = ("iterations", "face_iterations", "linear_iterations", "factorizations",
+                "stale_solves",
                 "jacobian_reuses", "residual_evaluations", "time_assembly", "time_linear")
 
     def __init__(self, scene: Scene, fm: FracturedMesh, timer: Timer):
@@ -106,11 +108,36 @@ class MechanicsSimulation:
         material = scene.material
         self.solver.states_determine_jacobian = not (
             material.young.depends_on_time or material.poisson.depends_on_time)
+        self.solver.condensed = self._condensed()
         self.records: list[dict] = []
         self.has_initial_output = False
         self._saved = [f.x.array.copy() for f in model.unknowns]
         self._series: dict[str, XDMFSeries] = {}
         self._table: FractureTable | None = None
+
+    def _condensed(self):
+        """A :class:`~poromech.condensed.CondensedContact` where it applies, else None."""
+        from poromech.condensed import MAX_FACE_UNKNOWNS, CondensedContact, applicable
+        from poromech.newton import _is_direct
+
+        m, scene, ksp = self.model, self.scene, self.solver.snes.getKSP()
+        if not (scene.solver.condensation and m.lam is not None
+                and applicable(m.params.formulation, scene.degree, scene.contact.friction)
+                and self.solver.states_determine_jacobian and _is_direct(ksp)
+                and ksp.getPC().getFactorSolverType() == "mumps"):
+            return None
+        V = m.lam.function_space
+        n = V.dofmap.index_map.size_global * V.dofmap.index_map_bs
+        if n > MAX_FACE_UNKNOWNS:
+            log.info("%d multiplier unknowns: more than %d, the contact problem is not condensed",
+                     n, MAX_FACE_UNKNOWNS)
+            return None
+        try:
+            with self.timer.phase("setup"):
+                return CondensedContact(m, self.solver)
+        except (RuntimeError, PETSc.Error) as err:
+            log.warning("the contact problem is not condensed: %s", err)
+            return None
 
     def describe(self) -> dict:
         """Formulation, degree and size, for the summary."""
@@ -125,6 +152,10 @@ class MechanicsSimulation:
         }
         if self.model.beta_sm0 is not None:
             out["beta_sm_n"], out["beta_sm_t"] = self.model.beta_sm0
+        c = self.solver.condensed
+        out["condensed"] = None if c is None else {
+            "multipliers": c.multipliers, "factorizations": c.factorizations,
+            "setup_seconds": c.setup_seconds}
         if self.model.coercivity_ratio is not None:
             out["coercivity_ratio"] = self.model.coercivity_ratio
         if self.model.warnings:
@@ -165,7 +196,9 @@ class MechanicsSimulation:
         rec = result.record
         changes = ",".join(str(c) for c in rec["active_set_changes"]) or "-"
         res = rec["residuals"] or [float("nan")]
-        return (f"step {k + 1}/{n} t={t:g} s: {rec['reason']} in {rec['iterations']} Newton it "
+        face = f" (+{rec['face_iterations']} face Newton)" if rec.get("face_iterations") else ""
+        return (f"step {k + 1}/{n} t={t:g} s: {rec['reason']} in {rec['iterations']} Newton "
+                f"it{face} "
                 f"(|F| {res[0]:.2e} -> {res[-1]:.2e}), active-set changes {changes}, "
                 f"{rec['factorizations']} factorizations")
 

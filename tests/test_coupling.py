@@ -258,12 +258,14 @@ def test_mixed_complementarity_parameter_changes_the_newton_path_not_the_solutio
     complementarity functions: on the two first steps of the coupled six-fracture scene the
     default (E_max) and the β⁰ of Nitsche (1000 and 40 GPa, which mixed used before)
     reach the same states, apertures and pressures, and the default needs fewer contact Newton
-    iterations (over the 20 steps at m = 1: 129 against 230)."""
+    iterations (over the 20 steps at m = 1: 129 against 230; the regular Newton, without the
+    condensed solve, which needs no Newton iteration of the whole system)."""
     summaries, runs = {}, {}
     for name, sets in (("default", []), ("nitsche", ["contact.beta_sm_n=1e12",
                                                      "contact.beta_sm_t=4e10"])):
         scene = load_scene(ROOT / "configs" / "six_fractures.yaml",
-                           ["contact.formulation=mixed", "time.final=200", "time.steps=2", *sets])
+                           ["contact.formulation=mixed", "time.final=200", "time.steps=2",
+                            "solver.condensation=false", *sets])
         summaries[name] = run_scene(scene, tmp_path / name)
         runs[name] = tmp_path / name
         assert summaries[name]["status"] == "converged"
@@ -418,23 +420,30 @@ def test_scene_options_read_at_set_up_reach_petsc_and_do_not_linger(tmp_path):
     the first factorization of the contact Newton and of Darcy (the coupling's ``mat_mffd_*``:
     the Newton-Krylov test). They used to be removed from the options database when the solvers
     were created, before that, and were silently ignored. Afterwards no scene option is left in
-    the database (another solver with the same prefix would take it for a command-line one)."""
+    the database (another solver with the same prefix would take it for a command-line one).
+    The mechanics' MUMPS options reach the factorization of the condensed ``mixed`` solve too."""
     from poromech.run import build_mesh, make_simulation
     from poromech.timing import Timer
 
-    scene = load_scene(ROOT / "configs" / "six_fractures.yaml", [
-        "contact.formulation=mixed", "coupling.method=newtonkrylov",
-        "solver.petsc={mat_mumps_icntl_14: 37}", "flow.petsc={mat_mumps_icntl_14: 41}"])
-    sim = make_simulation(scene, build_mesh(scene, comm), Timer())
-    try:
-        sim.initialize()
-        assert sim.solve(100.0, 100.0).converged
-        mech = sim.mech.solver.snes.getKSP().getPC().getFactorMatrix()
-        flow = sim.flow.solver.ksp.getPC().getFactorMatrix()
-        assert mech.getMumpsIcntl(14) == 37 and flow.getMumpsIcntl(14) == 41
-        db = PETSc.Options()
-        for name in ("mech_mat_mumps_icntl_14", "flow_mat_mumps_icntl_14", "coupling_mat_mffd_err",
-                     "coupling_snes_mf", "mech_pc_type"):
-            assert not db.hasName(name), name
-    finally:
-        sim.close()
+    for condensation in ("false", "true"):
+        scene = load_scene(ROOT / "configs" / "six_fractures.yaml", [
+            "contact.formulation=mixed", "coupling.method=newtonkrylov",
+            "solver.petsc={mat_mumps_icntl_14: 37}", "flow.petsc={mat_mumps_icntl_14: 41}",
+            f"solver.condensation={condensation}"])
+        sim = make_simulation(scene, build_mesh(scene, comm), Timer())
+        try:
+            sim.initialize()
+            assert sim.solve(100.0, 100.0).converged
+            condensed = sim.mech.solver.condensed
+            assert (condensed is not None) == (condensation == "true")
+            ksp = sim.mech.solver.snes.getKSP() if condensed is None else condensed.ksp
+            mech = ksp.getPC().getFactorMatrix()
+            flow = sim.flow.solver.ksp.getPC().getFactorMatrix()
+            assert mech.getMumpsIcntl(14) == 37 and flow.getMumpsIcntl(14) == 41
+            db = PETSc.Options()
+            for name in ("mech_mat_mumps_icntl_14", "flow_mat_mumps_icntl_14",
+                         "coupling_mat_mffd_err", "coupling_snes_mf", "mech_pc_type",
+                         "mech_condensed_mat_mumps_icntl_14", "mech_condensed_mat_mumps_icntl_24"):
+                assert not db.hasName(name), name
+        finally:
+            sim.close()

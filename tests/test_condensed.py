@@ -1,0 +1,163 @@
+"""The condensed solve of ``mixed`` (poromech/condensed.py): the face problem is the assembled
+one, and the condensed solution is the regular Newton's."""
+
+import numpy as np
+import pytest
+from conftest import ROOT
+from mpi4py import MPI
+from petsc4py import PETSc
+
+import poromech.condensed as condensed
+from poromech.config import load_scene
+from poromech.run import MechanicsSimulation, build_mesh
+from poromech.timing import Timer
+
+comm = MPI.COMM_WORLD
+
+
+def simulation(name: str, *overrides: str) -> MechanicsSimulation:
+    scene = load_scene(ROOT / "configs" / f"{name}.yaml", ["contact.formulation=mixed",
+                                                           *overrides])
+    return MechanicsSimulation(scene, build_mesh(scene, comm), Timer())
+
+
+def unknowns(sim) -> list[np.ndarray]:
+    return [f.x.array.copy() for f in sim.model.unknowns]
+
+
+@pytest.mark.parametrize("friction", ["coulomb", "tresca", "frictionless"])
+def test_face_residual_and_map_are_those_of_the_assembled_problem(friction):
+    """At random multipliers and averages that put faces on every branch (open, stick, slip
+    both ways), the face residual of the condensed problem equals the assembled multiplier rows;
+    its Jacobian matches central differences; and ``G`` is the averages' response to ``λ``
+    through a solve with the condensation matrix."""
+    sets = ["contact.friction=" + friction, "time.steps=1"]
+    if friction == "tresca":
+        sets.append("contact.slip_bound=2.0e6")
+    sim = simulation("six_fractures_mechanics", *sets)
+    c, s = sim.solver.condensed, sim.solver
+    assert c is not None
+    rng = np.random.default_rng(3)
+    p = c.problem
+    x = s.x.duplicate()
+    x.setRandom()
+    x.scale(1e-4)
+    values = c._gather(x)
+    if comm.rank == 0:  # realistic magnitudes: tractions ~ MPa, β a ~ tractions
+        values[c.lam_pos] = rng.normal(0.0, 5e6, c.lam_pos.size)
+        beta = np.empty(c.avg_pos.size)
+        beta[p.an] = p.beta_n
+        if p.at is not None:
+            beta[p.at] = p.beta_t
+        values[c.avg_pos] = rng.normal(0.0, 5e6, c.avg_pos.size) / beta
+        c._seq.getArray()[:] = values
+    c.scatter.scatter(c._seq, x, PETSc.InsertMode.INSERT, PETSc.ScatterMode.REVERSE)
+    f = s.b.duplicate()
+    s._residual(s.snes, x, f)
+    assembled = c._gather(f)
+    coefficient, bound = c._law()
+    if comm.rank == 0:
+        lam, a = values[c.lam_pos], values[c.avg_pos]
+        R, J = p.residual(lam, a, coefficient, bound, jacobian=True)
+        assert np.allclose(R, assembled[c.lam_pos], rtol=1e-12, atol=1e-9 * np.abs(R).max())
+        pn = -(lam[p.ln] + p.beta_n * a[p.an])
+        assert 0 < np.count_nonzero(pn <= 0) < pn.size  # open and closed faces
+        if p.lt is not None:
+            pt = -(lam[p.lt] + p.beta_t * a[p.at])
+            S = -coefficient * np.minimum(pn, 0.0) if friction == "coulomb" else bound
+            assert np.any(np.abs(pt) < S) and np.any(pt > S) and np.any(pt < -S)
+        d = rng.normal(0.0, 1.0, lam.size) * 1e-7 * np.abs(lam)  # small: no branch switches
+        Rp = p.residual(lam + d, a + p.G @ d, coefficient, bound)[0]
+        Rm = p.residual(lam - d, a - p.G @ d, coefficient, bound)[0]
+        assert np.allclose(J @ d, (Rp - Rm) / 2, rtol=1e-5, atol=1e-6 * np.abs(J @ d).max())
+    # G: the averages' response to a change of λ, J₀ y = (0, |σ| δλ, 0)
+    step = rng.normal(0.0, 1e6, p.ln.size * (1 if p.lt is None else 2)) if comm.rank == 0 \
+        else None
+    v = c._step_vector(step)
+    v.pointwiseMult(v, c._lambda_diagonal())
+    y = v.duplicate()
+    c.ksp.solve(v, y)
+    response = c._gather(y)
+    if comm.rank == 0:
+        assert np.allclose(response[c.lam_pos], step, rtol=1e-10)
+        expected = p.G @ step
+        assert np.allclose(response[c.avg_pos], expected, rtol=1e-8,
+                           atol=1e-10 * np.abs(expected).max())
+    sim.close()
+
+
+def test_condensed_solution_is_the_regular_newtons():
+    """The six-fracture mechanics scene in three steps: the condensed candidate passes the
+    regular Newton's test at iteration 0 in every step (no factorization of the Jacobian), and
+    the unknowns equal those of the regular Newton to its tolerance."""
+    runs = {}
+    for flag in (True, False):
+        sim = simulation("six_fractures_mechanics", "time.steps=3",
+                         f"solver.condensation={str(flag).lower()}")
+        assert (sim.solver.condensed is not None) == flag
+        records = sim.run()
+        assert all(r["converged"] for r in records)
+        runs[flag] = (records, unknowns(sim))
+        sim.close()
+    cond, regular = runs[True][0], runs[False][0]
+    assert [r["iterations"] for r in cond] == [0, 0, 0]
+    assert all(r["factorizations"] == 0 for r in cond)
+    # the first step switches faces; the next start from the extrapolated solution, exact here
+    assert cond[0]["face_iterations"] > 0
+    assert regular[0]["iterations"] > 1
+    for a, b in zip(runs[True][1], runs[False][1], strict=True):
+        scale = comm.allreduce(float(np.abs(b).max(initial=0.0)), op=MPI.MAX)
+        err = comm.allreduce(float(np.abs(a - b).max(initial=0.0)), op=MPI.MAX)
+        assert err <= 1e-8 * scale
+
+
+def test_a_face_newton_that_fails_leaves_the_solve_to_the_regular_newton(monkeypatch):
+    """No face iteration allowed: the candidate is dropped and the regular Newton solves from
+    the original start, to the same solution as with condensation off."""
+    monkeypatch.setattr(condensed, "MAX_IT", 0)
+    sim = simulation("six_fractures_mechanics", "time.steps=1")
+    (rec,) = sim.run()
+    got = unknowns(sim)
+    sim.close()
+    sim = simulation("six_fractures_mechanics", "time.steps=1", "solver.condensation=false")
+    (ref,) = sim.run()
+    assert rec["converged"] and rec["iterations"] == ref["iterations"] > 0
+    assert rec["face_iterations"] == 0
+    for a, b in zip(got, unknowns(sim), strict=True):
+        assert np.array_equal(a, b)
+    sim.close()
+
+
+@pytest.mark.parametrize("overrides", [["degree=1"], ["contact.formulation=stabilized_mixed"],
+                                       ["solver.petsc={ksp_type: gmres, pc_type: gamg}"]])
+def test_condensation_is_used_only_where_it_applies(overrides):
+    """Not with P1 (singular face problem), not for other formulations, not with an iterative
+    mechanics solver."""
+    sim = simulation("six_fractures_mechanics", "time.steps=1", *overrides)
+    assert sim.solver.condensed is None
+    assert sim.describe()["condensed"] is None
+    sim.close()
+
+
+def test_a_block_held_only_by_contact_is_solved_without_condensation(caplog):
+    """A fault through the whole domain with no displacement condition above it: the elastic
+    operator is singular, the condensation matrix cannot be factorized, the run warns and the
+    regular Newton solves it (with MUMPS' null-pivot detection)."""
+    from conftest import mechanics_scene
+
+    from poromech.config import scene_from_dict
+
+    raw = mechanics_scene(contact={"formulation": "mixed", "friction_coefficient": 0.5})
+    raw["geometry"]["fractures"] = [{"name": "fault", "points": [[0.0, 0.5], [2.0, 0.5]]}]
+    raw["boundary_conditions"] = [{"boundary": "bottom", "displacement": [0.0, 0.0]},
+                                  {"boundary": "top", "traction": [0.0, -1.0e6]}]
+    scene = scene_from_dict(raw)
+    with caplog.at_level("WARNING", logger="poromech"):
+        sim = MechanicsSimulation(scene, build_mesh(scene, comm), Timer())
+    assert sim.solver.condensed is None
+    assert "not condensed" in caplog.text
+    (rec,) = sim.run()
+    assert rec["converged"]
+    tn = sim.model.face_fields()[:, 2]
+    assert np.all(tn < 0.0) and abs(tn.mean() + 1.0e6) < 1e-2 * 1.0e6  # it carries the load
+    sim.close()
