@@ -469,6 +469,16 @@ class CondensedContact:
         return {"converged": False, "iterations": len(norms) - 1, "residuals": norms,
                 "step": None}
 
+    def describe(self) -> dict:
+        """Size and work of the condensation, for the summary.
+
+        Not collective: the dense inversions of the face Newton are counted on rank 0, which
+        writes the summary.
+        """
+        inversions = self._inverse.inversions if self._inverse is not None else 0
+        return {"multipliers": self.multipliers, "factorizations": self.factorizations,
+                "setup_seconds": self.setup_seconds, "dense_inversions": inversions}
+
     def destroy(self) -> None:
         """Free the PETSc objects (collective)."""
         for name in ("J0", "ksp", "_y", "_rhs", "_seq", "scatter", "mask_lambda", "_keep", "_dl"):

@@ -589,6 +589,7 @@ class PoromechanicsSimulation:
 
     def finish(self, summary: dict) -> None:
         """Totals of the fixed point and the flow report."""
+        self.mech.finish(summary)
         keys = ("g_evaluations", "iterations", "newton_iterations", "face_iterations",
                 "factorizations", "darcy_iterations", "darcy_solves")
         done = [r for r in self.records if "g_evaluations" in r]

@@ -153,9 +153,7 @@ class MechanicsSimulation:
         if self.model.beta_sm0 is not None:
             out["beta_sm_n"], out["beta_sm_t"] = self.model.beta_sm0
         c = self.solver.condensed
-        out["condensed"] = None if c is None else {
-            "multipliers": c.multipliers, "factorizations": c.factorizations,
-            "setup_seconds": c.setup_seconds}
+        out["condensed"] = None if c is None else c.describe()
         if self.model.coercivity_ratio is not None:
             out["coercivity_ratio"] = self.model.coercivity_ratio
         if self.model.warnings:
@@ -307,7 +305,9 @@ class MechanicsSimulation:
             saved[:] = f.x.array
 
     def finish(self, summary: dict) -> None:
-        """Nothing to add after the last step."""
+        """The work of the condensed solve, if any."""
+        if self.solver.condensed is not None:
+            summary["condensed"] = self.solver.condensed.describe()
 
     def run(self) -> list[dict]:
         """Solve every time step of the scene without writing anything (for studies, tests).

@@ -109,7 +109,8 @@ def cell(summary: dict, out: Path) -> tuple[str, bool]:
         if rescued:
             notes.append(f"{len(rescued)} step{'s' * (len(rescued) > 1)} by {rescued[0]}")
         extra = f" ({'; '.join(notes)})" if notes else ""
-        return f"{mark} {c['g_evaluations']} / {c['newton_iterations']}{extra}", True
+        face = f" + {c['face_iterations']} face" if c.get("face_iterations") else ""
+        return f"{mark} {c['g_evaluations']} / {c['newton_iterations']}{face}{extra}", True
     status = summary["status"]
     reason = next((w for w in status.replace(",", " ").replace(":", " ").split()
                    if w.startswith(("DIVERGED", "CONVERGED"))), status[:40])
@@ -137,6 +138,7 @@ def main() -> None:
             c = summary.get("coupling", {})
             csv_rows.append([name, f, ok, c.get("g_evaluations", math.nan),
                              c.get("newton_iterations", math.nan),
+                             c.get("face_iterations", 0),
                              summary["process_seconds"], summary["status"][:200]])
         rows.append([*row, what])
     command = "python scripts/poromechanics_robustness.py" + (" --degree 1" if p1 else "")
@@ -144,15 +146,17 @@ def main() -> None:
     stem = "robustness_p1" if p1 else "robustness"
     DOCS.mkdir(parents=True, exist_ok=True)
     write_csv(DOCS / f"{stem}.csv", ["case", "formulation", "converged", "g evaluations",
-                                     "Newton iterations", "seconds", "status"], csv_rows, stamp)
+                                     "Newton iterations", "face Newton iterations", "seconds",
+                                     "status"], csv_rows, stamp)
     header = ["case", *FORMULATIONS, "what it probes"]
     (DOCS / f"{stem}.md").write_text(
         f"# Coupled solver: stiff and extreme cases{' (P1)' if p1 else ''}\n\n{stamp} (1 MPI "
         f"rank). Six-fracture scene, m = 0, {'P1' if p1 else 'P2'}, Anderson (a step it fails "
         "on is solved again by NGMRES before it is cut), unless the case says otherwise. Cell: "
         "✓ g evaluations / contact Newton iterations over the run, every attempt of a cut step "
-        "included, or ✗ and the reason. Every field written by a converged run was checked to "
-        "be finite.\n\n" + markdown_table(header, rows))
+        "included (`+ N face`: iterations of the face Newton of the condensed `mixed` solve, "
+        "docs/poromechanics.md), or ✗ and the reason. Every field written by a converged run "
+        "was checked to be finite.\n\n" + markdown_table(header, rows))
 
 
 if __name__ == "__main__":
