@@ -333,15 +333,21 @@ def figure_jumps(runs: list[str], delta0: float = 1e-4) -> None:
 
 
 def figure_newton(runs: dict[str, list[str]]) -> None:
-    """Fig. 6: contact Newton iterations per time step (all g evaluations of the step)."""
+    """Fig. 6: contact Newton iterations per time step (all g evaluations of the step).
+
+    A run with the condensed ``mixed`` solve is drawn dashed with its face Newton iterations
+    (its regular Newton takes none: it only checks the condensed result).
+    """
     plt = _plt()
     fig, axes = plt.subplots(1, len(runs), figsize=(5 * len(runs), 3.4), sharey=True)
     for ax, (title, items) in zip(np.atleast_1d(axes), runs.items(), strict=True):
         for run in items:
             s = summary(run)
+            face = any(r.get("face_iterations") for r in s["solves"])
             ax.plot([r["time"] for r in s["solves"]],
-                    [r["newton_iterations"] for r in s["solves"]], "o-",
-                    label=label(run), ms=3)
+                    [r["newton_iterations"] + r.get("face_iterations", 0) for r in s["solves"]],
+                    "o--" if face else "o-", ms=3,
+                    label=label(run) + (" (face Newton, condensed)" if face else ""))
         ax.set_title(title)
         ax.set_xlabel("t (s)")
         ax.grid(alpha=0.3)
