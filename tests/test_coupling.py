@@ -275,6 +275,29 @@ def test_mixed_complementarity_parameter_changes_the_newton_path_not_the_solutio
     assert_same_fixed_point(runs["default"], runs["nitsche"])
 
 
+def test_condensed_mixed_reaches_the_fixed_point_of_the_regular_newton(tmp_path):
+    """The condensed contact solve of ``mixed`` (poromech/condensed.py) inside ``g``: on the
+    three loading steps of the coupled six-fracture scene the same ``g`` evaluations, states,
+    apertures and pressures as with the regular Newton, no Newton iteration of the whole system
+    and no factorization but the two of its set-up."""
+    summaries, runs = {}, {}
+    for flag in ("true", "false"):
+        scene = load_scene(ROOT / "configs" / "six_fractures.yaml",
+                           ["contact.formulation=mixed", "time.final=300", "time.steps=3",
+                            f"solver.condensation={flag}"])
+        summaries[flag] = run_scene(scene, tmp_path / flag)
+        runs[flag] = tmp_path / flag
+        assert summaries[flag]["status"] == "converged"
+    cond, regular = summaries["true"], summaries["false"]
+    assert cond["condensed"]["factorizations"] == 2 and regular["condensed"] is None
+    assert [r["g_evaluations"] for r in cond["solves"]] == \
+        [r["g_evaluations"] for r in regular["solves"]]
+    assert cond["coupling"]["newton_iterations"] == cond["coupling"]["factorizations"] == 0
+    assert cond["coupling"]["face_iterations"] > 0
+    assert regular["coupling"]["newton_iterations"] > 0
+    assert_same_fixed_point(runs["true"], runs["false"], rtol=1e-6)
+
+
 def test_newton_krylov_converges_like_newton_to_the_same_fixed_point(tmp_path):
     """Matrix-free Newton-Krylov on ``p - g(p)`` (the paper's method) differences ``g`` with a
     step relative to the pressures (``mat_mffd_type ds``): on the three loading steps of the
