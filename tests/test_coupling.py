@@ -253,6 +253,22 @@ def test_only_what_a_scene_needs_is_built(tmp_path):
     sim.close()
 
 
+def mixed_loading_runs(tmp_path, variants: dict[str, list[str]], steps: int = 3):
+    """The first ``steps`` loading steps (100 s each) of the coupled six-fracture scene with
+    ``mixed``, once per variant (name: overrides); each run must converge. Returns the
+    summaries and the output directories by name."""
+    summaries, runs = {}, {}
+    for name, sets in variants.items():
+        scene = load_scene(ROOT / "configs" / "six_fractures.yaml",
+                           ["contact.formulation=mixed", f"time.final={100 * steps}",
+                            f"time.steps={steps}", *sets])
+        summaries[name] = run_scene(scene, tmp_path / name)
+        runs[name] = tmp_path / name
+        assert summaries[name]["status"] == "converged"
+        assert len(summaries[name]["solves"]) == steps  # no step cut
+    return summaries, runs
+
+
 def test_mixed_complementarity_parameter_changes_the_newton_path_not_the_solution(tmp_path):
     """``mixed`` imposes the contact conditions exactly whatever ``β^sm > 0`` of its
     complementarity functions: on the two first steps of the coupled six-fracture scene the
@@ -260,15 +276,10 @@ def test_mixed_complementarity_parameter_changes_the_newton_path_not_the_solutio
     reach the same states, apertures and pressures, and the default needs fewer contact Newton
     iterations (over the 20 steps at m = 1: 129 against 230; the regular Newton, without the
     condensed solve, which needs no Newton iteration of the whole system)."""
-    summaries, runs = {}, {}
-    for name, sets in (("default", []), ("nitsche", ["contact.beta_sm_n=1e12",
-                                                     "contact.beta_sm_t=4e10"])):
-        scene = load_scene(ROOT / "configs" / "six_fractures.yaml",
-                           ["contact.formulation=mixed", "time.final=200", "time.steps=2",
-                            "solver.condensation=false", *sets])
-        summaries[name] = run_scene(scene, tmp_path / name)
-        runs[name] = tmp_path / name
-        assert summaries[name]["status"] == "converged"
+    summaries, runs = mixed_loading_runs(tmp_path, {
+        "default": ["solver.condensation=false"],
+        "nitsche": ["solver.condensation=false", "contact.beta_sm_n=1e12",
+                    "contact.beta_sm_t=4e10"]}, steps=2)
     assert summaries["default"]["beta_sm_n"] == 4e9 and summaries["nitsche"]["beta_sm_n"] == 1e12
     its = {k: s["coupling"]["newton_iterations"] for k, s in summaries.items()}
     assert its["default"] < 0.8 * its["nitsche"], its
@@ -280,14 +291,8 @@ def test_condensed_mixed_reaches_the_fixed_point_of_the_regular_newton(tmp_path)
     three loading steps of the coupled six-fracture scene the same ``g`` evaluations, states,
     apertures and pressures as with the regular Newton, no Newton iteration of the whole system
     and no factorization but the two of its set-up."""
-    summaries, runs = {}, {}
-    for flag in ("true", "false"):
-        scene = load_scene(ROOT / "configs" / "six_fractures.yaml",
-                           ["contact.formulation=mixed", "time.final=300", "time.steps=3",
-                            f"solver.condensation={flag}"])
-        summaries[flag] = run_scene(scene, tmp_path / flag)
-        runs[flag] = tmp_path / flag
-        assert summaries[flag]["status"] == "converged"
+    summaries, runs = mixed_loading_runs(
+        tmp_path, {flag: [f"solver.condensation={flag}"] for flag in ("true", "false")})
     cond, regular = summaries["true"], summaries["false"]
     assert cond["condensed"]["factorizations"] == 2 and regular["condensed"] is None
     assert [r["g_evaluations"] for r in cond["solves"]] == \
@@ -304,15 +309,8 @@ def test_newton_krylov_converges_like_newton_to_the_same_fixed_point(tmp_path):
     coupled six-fracture scene it converges in at most 3 Newton iterations per step and
     reaches the fixed point of Anderson. With PETSc's default step (``wp``, made for unknowns of
     order one) it needed 32 iterations in the first step and diverged in the second."""
-    summaries, runs = {}, {}
-    for method in ("anderson", "newtonkrylov"):
-        scene = load_scene(ROOT / "configs" / "six_fractures.yaml",
-                           ["contact.formulation=mixed", "time.final=300", "time.steps=3",
-                            f"coupling.method={method}"])
-        summaries[method] = run_scene(scene, tmp_path / method)
-        runs[method] = tmp_path / method
-        assert summaries[method]["status"] == "converged"
-        assert len(summaries[method]["solves"]) == 3  # no step cut
+    summaries, runs = mixed_loading_runs(
+        tmp_path, {m: [f"coupling.method={m}"] for m in ("anderson", "newtonkrylov")})
     assert max(r["iterations"] for r in summaries["newtonkrylov"]["solves"]) <= 3
     assert_same_fixed_point(runs["anderson"], runs["newtonkrylov"])
 
