@@ -161,3 +161,22 @@ def test_a_block_held_only_by_contact_is_solved_without_condensation(caplog):
     tn = sim.model.face_fields()[:, 2]
     assert np.all(tn < 0.0) and abs(tn.mean() + 1.0e6) < 1e-2 * 1.0e6  # it carries the load
     sim.close()
+
+
+def test_a_face_newton_stagnating_at_round_off_hands_its_result_to_the_regular_check(
+        monkeypatch):
+    """A face tolerance below round-off (a very large ``β^sm`` does that): the face Newton stops
+    when it no longer decreases its residual, and its result, within the regular tolerance, is
+    accepted by the regular Newton at iteration 0 instead of being thrown away."""
+    monkeypatch.setattr(condensed, "SAFETY", 1e-30)
+    sim = simulation("six_fractures_mechanics", "time.steps=1")
+    (rec,) = sim.run()
+    got = unknowns(sim)
+    sim.close()
+    assert rec["converged"] and rec["iterations"] == 0
+    assert rec["face_iterations"] > condensed.MAX_WATCHDOG
+    sim = simulation("six_fractures_mechanics", "time.steps=1", "solver.condensation=false")
+    sim.run()
+    for a, b in zip(got, unknowns(sim), strict=True):
+        assert np.abs(a - b).max() <= 1e-8 * np.abs(b).max()
+    sim.close()
