@@ -282,6 +282,12 @@ class CondensedContact:
         self._inverse = _RowUpdatedInverse(self.multipliers) if self.comm.rank == 0 else None
         self._y = self.J0.createVecRight()
         self._rhs = self.J0.createVecLeft()
+        self._start = self.J0.createVecRight()  # the unknowns a failed face Newton restores
+        self._keep = self.mask_lambda.duplicate()  # 1 on the rows that are not λ's
+        self._keep.set(1.0)
+        self._keep.axpy(-1.0, self.mask_lambda)
+        self._lambda_diagonal = self.J0.getDiagonal()  # |σ| on λ's rows, 0 elsewhere
+        self._lambda_diagonal.pointwiseMult(self._lambda_diagonal, self.mask_lambda)
         self.setup_seconds = time.perf_counter() - t0
         self.factorizations = 2
 
@@ -320,7 +326,6 @@ class CondensedContact:
         else:
             glob_rows = np.empty(0, np.int64)
         self.rows = glob_rows
-        self.n = self.comm.bcast(len(glob_rows), root=0)
         #: Multiplier unknowns (the size of the face problem).
         self.multipliers = self.comm.bcast(
             int(np.count_nonzero(self.codes // 10 == 1)) if self.comm.rank == 0 else 0, root=0)
@@ -378,21 +383,23 @@ class CondensedContact:
         return coefficient, bound
 
     def solve(self, x: PETSc.Vec, f0: PETSc.Vec, tol: float, min_steps: int) -> dict:
-        """Candidate solution written into ``x`` (collective).
+        """The candidate solution, written into ``x`` when the face Newton converged (collective).
 
         Args:
-            x: The current unknowns (block vector); overwritten by the candidate.
+            x: The current unknowns (block vector); left unchanged when the face Newton fails.
             f0: The assembled residual at ``x``.
-            tol: Face residual norm to reach.
-            min_steps: Face Newton steps taken even when ``tol`` is met at once.
+            tol: The regular Newton's absolute tolerance; the face residual is solved to
+                :data:`SAFETY` times it, or accepted within it when it stagnates at round-off.
+            min_steps: Face Newton steps taken even when the tolerance is met at once.
 
         Returns:
             ``converged``, ``iterations``, ``residuals`` (face residual norms).
         """
-        rhs, y = self._rhs, self._y
-        f0.copy(rhs)
-        rhs.pointwiseMult(rhs, self._not_lambda())
-        self.ksp.solve(rhs, y)
+        y, start = self._y, self._start
+        x.copy(start)
+        f0.copy(self._rhs)
+        self._rhs.pointwiseMult(self._rhs, self._keep)  # no change of λ
+        self.ksp.solve(self._rhs, y)
         x.axpy(-1.0, y)  # the linear rows hold at the current λ
         values = self._gather(x)
         out, step = None, None
@@ -400,36 +407,23 @@ class CondensedContact:
             out = self._face_newton(values, tol, min_steps)
             step = out.pop("step")
         out = self.comm.bcast(out, root=0)
-        if out["converged"]:
-            # the displacement and averages for the new λ: J₀ y = (0, |σ| δλ, 0)
-            v = self._step_vector(step)
-            v.pointwiseMult(v, self._lambda_diagonal())
-            self.ksp.solve(v, y)
-            x.axpy(1.0, y)
-            v.destroy()
+        if not out["converged"]:
+            start.copy(x)
+            return out
+        # the displacement and averages for the new λ: J₀ y = (0, |σ| δλ, 0)
+        v = self._step_vector(step)
+        v.pointwiseMult(v, self._lambda_diagonal)
+        self.ksp.solve(v, y)
+        x.axpy(1.0, y)
         return out
-
-    def _not_lambda(self) -> PETSc.Vec:
-        if not hasattr(self, "_keep"):
-            self._keep = self.mask_lambda.duplicate()
-            self._keep.set(1.0)
-            self._keep.axpy(-1.0, self.mask_lambda)
-        return self._keep
-
-    def _lambda_diagonal(self) -> PETSc.Vec:
-        if not hasattr(self, "_dl"):
-            self._dl = self.J0.getDiagonal()
-            self._dl.pointwiseMult(self._dl, self.mask_lambda)
-        return self._dl
 
     def _step_vector(self, step: npt.NDArray | None) -> PETSc.Vec:
         """Block vector with ``δλ`` in the multiplier rows, zero elsewhere (collective)."""
-        v = self.solver.x.duplicate()
+        v = self._rhs
         v.set(0.0)
         if self.comm.rank == 0:
             self._seq.getArray()[:] = 0.0
-            if step is not None:
-                self._seq.getArray()[self.lam_pos] = step
+            self._seq.getArray()[self.lam_pos] = step
         self.scatter.scatter(self._seq, v, PETSc.InsertMode.INSERT, PETSc.ScatterMode.REVERSE)
         return v
 
@@ -447,7 +441,7 @@ class CondensedContact:
         norms = [float(np.linalg.norm(R))]
         watchdog = 0
         for it in range(MAX_IT + 1):
-            if norms[-1] <= tol and it >= min_steps:
+            if norms[-1] <= SAFETY * tol and it >= min_steps:
                 return {"converged": True, "iterations": it, "residuals": norms, "step": dl}
             if it == MAX_IT or watchdog >= MAX_WATCHDOG or not np.isfinite(norms[-1]):
                 break
@@ -468,7 +462,7 @@ class CondensedContact:
             norms.append(float(np.linalg.norm(R)))
         # stagnated at its round-off but within the regular tolerance (very large β^sm): the
         # regular Newton checks the result like any other
-        usable = bool(norms[-1] <= tol / SAFETY)
+        usable = bool(norms[-1] <= tol)
         return {"converged": usable, "iterations": len(norms) - 1, "residuals": norms,
                 "step": dl if usable else None}
 
@@ -484,7 +478,8 @@ class CondensedContact:
 
     def destroy(self) -> None:
         """Free the PETSc objects (collective)."""
-        for name in ("J0", "ksp", "_y", "_rhs", "_seq", "scatter", "mask_lambda", "_keep", "_dl"):
+        for name in ("J0", "ksp", "_y", "_rhs", "_start", "_seq", "scatter", "mask_lambda",
+                     "_keep", "_lambda_diagonal"):
             obj = getattr(self, name, None)
             if obj is not None:
                 obj.destroy()

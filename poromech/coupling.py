@@ -117,9 +117,8 @@ class PoromechanicsSimulation:
     """
 
     counters = ("iterations", "g_evaluations", "newton_iterations", "face_iterations",
-                "factorizations",
-                "stale_solves", "darcy_iterations", "darcy_solves", "mechanics_seconds",
-                "darcy_seconds", "solve_seconds")
+                "factorizations", "stale_solves", "darcy_iterations", "darcy_solves",
+                "mechanics_seconds", "darcy_seconds", "solve_seconds")
 
     def __init__(self, scene: Scene, fm: FracturedMesh, timer: Timer):
         self.scene, self.fm, self.timer, self.comm = scene, fm, timer, fm.comm

@@ -79,8 +79,8 @@ class MechanicsSimulation:
     """
 
     counters = ("iterations", "face_iterations", "linear_iterations", "factorizations",
-                "stale_solves",
-                "jacobian_reuses", "residual_evaluations", "time_assembly", "time_linear")
+                "stale_solves", "jacobian_reuses", "residual_evaluations", "time_assembly",
+                "time_linear")
 
     def __init__(self, scene: Scene, fm: FracturedMesh, timer: Timer):
         from poromech.mechanics import MechanicsModel

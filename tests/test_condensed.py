@@ -74,7 +74,7 @@ def test_face_residual_and_map_are_those_of_the_assembled_problem(friction):
     step = rng.normal(0.0, 1e6, p.ln.size * (1 if p.lt is None else 2)) if comm.rank == 0 \
         else None
     v = c._step_vector(step)
-    v.pointwiseMult(v, c._lambda_diagonal())
+    v.pointwiseMult(v, c._lambda_diagonal)
     y = v.duplicate()
     c.ksp.solve(v, y)
     response = c._gather(y)

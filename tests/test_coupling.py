@@ -183,11 +183,13 @@ def test_restart_reproduces_the_uninterrupted_run(tmp_path, monkeypatch):
 
 
 @pytest.mark.mpi
-def test_one_rank_equals_two_ranks(tmp_path):
+@pytest.mark.parametrize("formulation", ["nitsche", "mixed"])
+def test_one_rank_equals_two_ranks(tmp_path, formulation):
     """The coupled six-fracture scene (two loading steps) on 1 and 2 ranks: same fields and
-    iteration counts to solver tolerance (the files are written in rank-independent order)."""
+    iteration counts to solver tolerance (the files are written in rank-independent order);
+    ``mixed`` with its condensed solve, whose face problem runs on rank 0."""
     args = ["run", str(ROOT / "configs" / "six_fractures.yaml"), "-q", "--set", "time.final=200",
-            "--set", "time.steps=2"]
+            "--set", "time.steps=2", "--set", f"contact.formulation={formulation}"]
     out = {}
     for n in (1, 2):
         out[n] = tmp_path / f"n{n}"
@@ -196,9 +198,11 @@ def test_one_rank_equals_two_ranks(tmp_path):
         assert proc.returncode == 0, proc.stderr[-3000:]
     s1, s2 = (json.loads((out[n] / "summary.json").read_text()) for n in (1, 2))
     assert s2["mpi_ranks"] == 2
+    assert all((s["condensed"] is not None) == (formulation == "mixed") for s in (s1, s2))
     for a, b in zip(s1["solves"], s2["solves"], strict=True):
         assert a["g_evaluations"] == b["g_evaluations"]
         assert abs(a["newton_iterations"] - b["newton_iterations"]) <= 2
+        assert abs(a["face_iterations"] - b["face_iterations"]) <= 2
     for stem, name in (("flow", "p_m"), ("fractures", "jump_n"), ("fractures", "p_f")):
         f1, f2 = read_series(out[1], stem).fields(-1), read_series(out[2], stem).fields(-1)
         assert np.abs(f1[name] - f2[name]).max() <= 1e-6 * np.abs(f1[name]).max(), (stem, name)
