@@ -1,7 +1,8 @@
 """Kinematics and tractions on the fracture network: pure UFL.
 
 All quantities live on the interior fracture facets of the connected mesh, measured with a
-``dS`` whose ``'+'`` side is the side that ``n⁺`` points out of (see ``poromech.mesh``). In 2D the
+``dS`` whose ``'+'`` side is the side that ``n⁺`` points out of (see ``poromech.mesh.fractured``).
+In 2D the
 tangent is ``τ = (n⁺_y, -n⁺_x)``, the direction in which the fracture polyline is written.
 Sign conventions follow the paper: ``[[u]] = u⁺ - u⁻``, ``[[u]]_n = [[u]]·n⁺ <= 0`` (negative when
 open), contact traction ``T_n <= 0`` (compression), aperture ``d_f = d_0 - [[u]]_n``.

@@ -169,9 +169,10 @@ def _load(args, comm):
 
     A file visible on rank 0 only is fine. A restart reads the scene stored with its run.
     """
-    from poromech.config import ConfigError, load_scene_and_raw
+    from poromech.errors import ConfigError
     from poromech.parallel import on_root
     from poromech.run import SCENE_FILE
+    from poromech.scene.loading import load_scene_and_raw
 
     restart = getattr(args, "restart", None)
     if restart is None:
@@ -185,9 +186,9 @@ def _load(args, comm):
 
 def _check(args, petsc_opts: dict, comm):
     """Everything that can be refused before meshing; returns scene, mapping and estimate."""
-    from poromech.config import plane_geometry
     from poromech.petsc_options import check_petsc_options
-    from poromech.resources import check_resources
+    from poromech.scene.geometry import plane_geometry
+    from poromech.scene.resources import check_resources
 
     scene, raw = _load(args, comm)
     check_petsc_options(petsc_opts, scene)
@@ -206,7 +207,7 @@ def _run(args, petsc_opts: dict, comm) -> int:
     from petsc4py import PETSc
 
     from poromech.errors import OutputError, SolverError
-    from poromech.outdir import default_output_dir, output_directory
+    from poromech.io.outdir import default_output_dir, output_directory
     from poromech.petsc_options import report_unused_options
     from poromech.run import run_scene
     from poromech.stepping import Interrupted
@@ -250,7 +251,7 @@ def _scene_list() -> str:
     """One line per shipped scene: its name and description."""
     import yaml
 
-    from poromech.config import shipped_scenes
+    from poromech.scene.loading import shipped_scenes
 
     scenes = shipped_scenes()
     width = max(map(len, scenes))
@@ -269,8 +270,8 @@ def _scenes(args, petsc_opts: dict, comm) -> int:
 
 
 def _show(args, petsc_opts: dict, comm) -> int:
-    from poromech.config import scene_text
     from poromech.parallel import on_root
+    from poromech.scene.loading import scene_text
 
     text = on_root(comm, scene_text, args.scene)
     if comm.rank == 0:
@@ -281,8 +282,8 @@ def _show(args, petsc_opts: dict, comm) -> int:
 
 def _plot(args, petsc_opts: dict, comm) -> int:
     """Draw the pictures of a run on rank 0 (serial); status 2 if OUTDIR is not a run's."""
+    from poromech.io.plot import PlotError, plot_run
     from poromech.parallel import on_root
-    from poromech.plot import PlotError, plot_run
 
     try:
         paths = on_root(comm, plot_run, args.outdir, time=args.time, scale=args.scale,
@@ -368,11 +369,10 @@ def main(argv: list[str] | None = None) -> int:
 
     from mpi4py import MPI
 
-    from poromech.config import ConfigError
-    from poromech.errors import SolverError
-    from poromech.outdir import OutputDirError
+    from poromech.errors import ConfigError, SolverError
+    from poromech.io.outdir import OutputDirError
     from poromech.petsc_options import PetscOptionError
-    from poromech.resources import ResourceError
+    from poromech.scene.resources import ResourceError
 
     comm = MPI.COMM_WORLD
     _error_comm(comm)

@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
-__all__ = ["OutputError", "SolverError"]
+__all__ = ["ConfigError", "OutputError", "SolverError"]
+
+
+class ConfigError(ValueError):
+    """An invalid scene or scene input; the message is a single line naming the key."""
 
 
 class OutputError(RuntimeError):
     """An output file could not be written (disk full, quota, permissions); one-line message.
 
-    The files of the steps completed before it stay readable (see :mod:`poromech.xdmf`).
+    The files of the steps completed before it stay readable (see :mod:`poromech.io.xdmf`).
     """
 
 

@@ -13,17 +13,17 @@ import yaml
 from mpi4py import MPI
 
 import poromech
-from poromech.checkpoint import load_checkpoint, save_checkpoint
-from poromech.config import plane_geometry
 from poromech.errors import SolverError
-from poromech.fieldcheck import validate_fields
-from poromech.mesh import FracturedMesh, create_fractured_mesh
-from poromech.meshing import MeshSizes, generate_mesh
-from poromech.output import write_summary
+from poromech.io.checkpoint import load_checkpoint, save_checkpoint
+from poromech.io.output import write_summary
+from poromech.mechanics.physics import MechanicsSimulation, formulation_options
+from poromech.mesh.fractured import FracturedMesh, create_fractured_mesh
+from poromech.mesh.generate import generate_mesh
 from poromech.parallel import agree
-from poromech.scene import Scene
-from poromech.simulation import MechanicsSimulation, formulation_options
-from poromech.stepping import Interrupted, run_steps, step_times, stop_signals
+from poromech.scene.fields import validate_fields
+from poromech.scene.geometry import mesh_sizes, plane_geometry
+from poromech.scene.schema import Scene, step_times
+from poromech.stepping import Interrupted, run_steps, stop_signals
 from poromech.timing import Timer
 
 __all__ = [
@@ -60,19 +60,6 @@ class RunContext:
         return self.fm.comm
 
 
-def mesh_sizes(scene: Scene) -> MeshSizes:
-    """Mesh sizes with the documented defaults filled in."""
-    m = scene.mesh
-    fracture = m.fracture_size or m.size
-    return MeshSizes(
-        size=m.size,
-        fracture_size=fracture,
-        tip_size=m.tip_size or fracture,
-        transition=m.transition or 4 * m.size,
-        refinement=m.refinement,
-    )
-
-
 def build_mesh(scene: Scene, comm: MPI.Comm, owner=None) -> FracturedMesh:
     """Generate or read (rank 0) and distribute the fractured mesh of a scene (collective).
 
@@ -83,7 +70,7 @@ def build_mesh(scene: Scene, comm: MPI.Comm, owner=None) -> FracturedMesh:
     if comm.rank == 0:
         try:
             if scene.geometry.mesh is not None:
-                from poromech.mesh_import import mesh_file_arrays
+                from poromech.mesh.imported import mesh_file_arrays
 
                 arrays = mesh_file_arrays(scene.geometry.mesh, geo, scene.mesh.refinement)
             else:
@@ -111,11 +98,11 @@ def _mesh_summary(fm: FracturedMesh) -> dict:
 def make_simulation(scene: Scene, fm: FracturedMesh, timer: Timer):
     """The physics object of a scene (collective)."""
     if scene.physics == "flow":
-        from poromech.flow.driver import FlowSimulation
+        from poromech.flow.physics import FlowSimulation
 
         return FlowSimulation(scene, fm, timer)
     if scene.physics == "poromechanics":
-        from poromech.coupling import PoromechanicsSimulation
+        from poromech.coupling.poromechanics import PoromechanicsSimulation
 
         return PoromechanicsSimulation(scene, fm, timer)
     return MechanicsSimulation(scene, fm, timer)

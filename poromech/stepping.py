@@ -31,18 +31,16 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Protocol
 
-import numpy as np
 from mpi4py import MPI
 
 from poromech.errors import SolverError
-from poromech.scene import Scene
+from poromech.scene.schema import Scene, step_times
 
 __all__ = [
     "Interrupted",
     "Physics",
     "StepResult",
     "run_steps",
-    "step_times",
     "stop_signals",
 ]
 
@@ -137,16 +135,6 @@ class stop_signals:
 
     def __exit__(self, *exc) -> None:
         self.flag.restore()
-
-
-def step_times(scene: Scene) -> list[float]:
-    """End times of the steps: ``[0]`` for a static scene, else the uniform or listed times."""
-    spec = scene.time
-    if spec is None:
-        return [0.0]
-    if spec.times:
-        return [float(t) for t in spec.times]
-    return [float(t) for t in np.linspace(0.0, spec.final, spec.steps + 1)[1:]]
 
 
 def _advance(physics: Physics, t0: float, t1: float, max_cuts: int,

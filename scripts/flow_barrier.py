@@ -20,7 +20,7 @@ import numpy as np
 from flow_common import DOCS, generated, markdown_table, save_figure, write_csv
 from mpi4py import MPI
 
-from poromech.flow.verification import (
+from poromech.verification.flow import (
     BARRIER_VARIANTS,
     barrier_metrics,
     barrier_scene,

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from poromech.probes import line_differences, read_csv  # noqa: F401  (re-exported for scripts)
+from poromech.io.probes import line_differences, read_csv  # noqa: F401  (re-exported for scripts)
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs" / "flow"

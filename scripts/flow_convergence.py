@@ -18,7 +18,7 @@ from flow_common import DOCS, generated, markdown_table, order_figure, write_csv
 from mpi4py import MPI
 
 from poromech.flow.balance import compute_fluxes, mass_balance
-from poromech.flow.verification import JumpSolution, build_mesh, observed_orders
+from poromech.verification.flow import JumpSolution, build_mesh, observed_orders
 
 KEYS = ("cell", "trace", "fracture", "node")
 COMMAND = "python scripts/flow_convergence.py"

@@ -32,8 +32,8 @@ from flow_common import (
 from flow_common import write_csv as write_table
 from mpi4py import MPI
 
-from poromech.config import load_scene
 from poromech.run import run_scene
+from poromech.scene.loading import load_scene
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402

@@ -21,11 +21,11 @@ import numpy as np
 from flow_common import DOCS, ROOT, generated, markdown_table, write_csv
 from mpi4py import MPI
 
-from poromech.config import load_scene
 from poromech.flow.balance import compute_fluxes, mass_balance
 from poromech.flow.problem import TimeStep
 from poromech.flow.setup import problem_from_scene
 from poromech.run import build_mesh
+from poromech.scene.loading import load_scene
 
 COMMAND = "mpirun -n 2 python scripts/flow_scale.py"
 DT = 0.01

@@ -18,7 +18,7 @@ import numpy as np
 from flow_common import DOCS, generated, markdown_table, order_figure, write_csv
 from mpi4py import MPI
 
-from poromech.flow.verification import Diffusion1D, build_mesh, observed_orders
+from poromech.verification.flow import Diffusion1D, build_mesh, observed_orders
 
 COMMAND = "python scripts/flow_transient.py"
 

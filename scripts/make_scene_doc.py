@@ -1,8 +1,8 @@
 """Generate ``docs/scene_schema.md`` from the scene dataclasses (units, defaults, checks).
 
 Everything in the reference comes from the code the loader runs: the keys, types, defaults and
-checks from :mod:`poromech.scene` (the classes :mod:`poromech.config` builds), the expression
-functions from :mod:`poromech.expressions`, the limits from :mod:`poromech.config`. A test
+checks from :mod:`poromech.scene.schema` (the classes :mod:`poromech.scene` builds), the expression
+functions from :mod:`poromech.scene.expressions`, the limits from :mod:`poromech.scene`. A test
 (``tests/test_config.py``) checks that the file is up to date and that every documented key is
 accepted by the loader.
 
@@ -19,9 +19,10 @@ import types
 import typing
 from pathlib import Path
 
-from poromech import config, expressions
-from poromech.expressions import Expression
-from poromech.scene import Scene
+from poromech.scene import expressions
+from poromech.scene import loading as config
+from poromech.scene.expressions import Expression
+from poromech.scene.schema import Scene
 
 ROOT = Path(__file__).resolve().parents[1]
 OUTPUT = ROOT / "docs" / "scene_schema.md"
@@ -137,7 +138,8 @@ def header() -> list[str]:
     return [
         "# Scene file reference",
         "",
-        "Generated from `poromech/scene.py` by `python scripts/make_scene_doc.py`: the tables "
+        "Generated from `poromech/scene/schema.py` by `python scripts/make_scene_doc.py`: the "
+        "tables "
         "list exactly the keys the loader accepts. A scene is a YAML mapping in a UTF-8 file of "
         f"at most {config.MAX_SCENE_BYTES / 1e6:g} MB. Unknown keys, a key given twice, wrong "
         "types and out-of-range values are rejected with a one-line message (exit status 2) "

@@ -26,10 +26,10 @@ import dolfinx_solver  # noqa: F401
 import numpy as np
 from mpi4py import MPI
 
-from poromech.config import load_scene
 from poromech.run import MechanicsSimulation, build_mesh
+from poromech.scene.loading import load_scene
 from poromech.timing import Timer
-from poromech.verification import exact_jump, jump_errors
+from poromech.verification.jumps import exact_jump, jump_errors
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "docs" / "mechanics"

@@ -53,7 +53,7 @@ TARGET = 12
 
 def quiet_output(scene_path: Path) -> list[str]:
     """Overrides switching off every writer the scene schema has (only summary.json stays)."""
-    from poromech.scene import Output
+    from poromech.scene.schema import Output
 
     names = {f.name for f in dataclasses.fields(Output)}
     return [f"output.{k}=false" for k in ("xdmf", "vtx", "fractures_csv", "checkpoint")
@@ -62,9 +62,9 @@ def quiet_output(scene_path: Path) -> list[str]:
 
 def run_case(level: str, formulation: str, theta: int, degree: int, label: str) -> list[dict]:
     """One scene run; one row per step (collective)."""
-    from poromech.config import load_scene
     from poromech.errors import SolverError
     from poromech.run import run_scene
+    from poromech.scene.loading import load_scene
 
     comm = MPI.COMM_WORLD
     # the regular Newton: the condensed solve of mixed P2 (solver.condensation) needs none of
@@ -246,7 +246,7 @@ def main() -> None:
         return
     comm = MPI.COMM_WORLD
     if args.no_predictor:
-        from poromech.mechanics import MechanicsModel
+        from poromech.mechanics.model import MechanicsModel
 
         MechanicsModel.extrapolate = False
     rows = []

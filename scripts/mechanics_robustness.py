@@ -29,11 +29,11 @@ import dolfinx_solver  # noqa: F401
 import numpy as np
 from mpi4py import MPI
 
-from poromech.config import load_scene, scene_from_dict
 from poromech.errors import SolverError
 from poromech.run import MechanicsSimulation, build_mesh
+from poromech.scene.loading import load_scene, scene_from_dict
 from poromech.timing import Timer
-from poromech.verification import exact_jump, jump_errors
+from poromech.verification.jumps import exact_jump, jump_errors
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "docs" / "mechanics"
@@ -119,7 +119,7 @@ def load(case: Case, extra: list[str]):
     """The scene of a case with extra overrides."""
     if isinstance(case.source, str):
         return load_scene(ROOT / "configs" / f"{case.source}.yaml", case.overrides + extra)
-    from poromech.config import apply_overrides
+    from poromech.scene.loading import apply_overrides
 
     return scene_from_dict(apply_overrides(case.source, case.overrides + extra))
 

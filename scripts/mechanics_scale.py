@@ -23,8 +23,8 @@ import dolfinx_solver  # noqa: F401
 
 from mpi4py import MPI
 
-from poromech.config import load_scene
 from poromech.run import MechanicsSimulation, build_mesh
+from poromech.scene.loading import load_scene
 from poromech.timing import Timer
 
 ROOT = Path(__file__).resolve().parents[1]

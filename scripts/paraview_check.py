@@ -57,7 +57,7 @@ class CheckError(AssertionError):
 
 
 def read_index(path):
-    """Times and, per step, the attributes of an XDMF index written by poromech.xdmf."""
+    """Times and, per step, the attributes of an XDMF index written by poromech.io.xdmf."""
     steps = []
     for grid in ET.parse(path).getroot().iter("Grid"):
         if grid.get("GridType") != "Uniform":

@@ -82,7 +82,7 @@ CASES = {
 
 def finite(out: Path) -> bool:
     """Whether every field of every written step is finite."""
-    from poromech.xdmf import read_series
+    from poromech.io.xdmf import read_series
 
     for stem in ("displacement", "fractures", "flow"):
         if not (out / f"{stem}.xdmf").exists():

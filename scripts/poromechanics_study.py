@@ -148,11 +148,11 @@ def _measure_units(m: int, degree: int, path: str) -> None:
     from mpi4py import MPI
     from petsc4py import PETSc
 
-    from poromech.config import load_scene
     from poromech.flow.setup import problem_from_scene
     from poromech.forms.elasticity import elastic_form
-    from poromech.mesh import cracked_space
+    from poromech.mesh.fractured import cracked_space
     from poromech.run import build_mesh
+    from poromech.scene.loading import load_scene
 
     comm = MPI.COMM_WORLD
     scene = load_scene(SCENE, [f"mesh.refinement={m}", f"degree={degree}"])
@@ -205,7 +205,7 @@ def _measure_units(m: int, degree: int, path: str) -> None:
 
 # -- reading results ---------------------------------------------------------------------------
 def _series(run: str, stem: str):
-    from poromech.xdmf import read_series
+    from poromech.io.xdmf import read_series
 
     return read_series(RUNS / run, stem)
 

@@ -11,8 +11,8 @@ import poromech  # noqa: F401, I001  (first: loads MPI before DOLFINx/PETSc)
 import argparse
 from pathlib import Path
 
-from poromech.config import load_scene_and_raw
-from poromech.plot import plot_run
+from poromech.scene.loading import load_scene_and_raw
+from poromech.io.plot import plot_run
 from poromech.run import run_scene
 
 ROOT = Path(__file__).resolve().parents[1]

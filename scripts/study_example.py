@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from poromech.config import load_scene
-from poromech.results import open_results
+from poromech.scene.loading import load_scene
+from poromech.io.results import open_results
 from poromech.run import run_scene
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -31,8 +31,8 @@ sys.path.insert(0, str(ROOT / "scripts"))
 from poromechanics_study import markdown_table, write_csv  # noqa: E402
 from test_coupling import TERZAGHI, terzaghi_errors  # noqa: E402
 
-from poromech.config import load_scene  # noqa: E402
 from poromech.run import run_scene  # noqa: E402
+from poromech.scene.loading import load_scene  # noqa: E402
 
 DOCS = ROOT / "docs" / "poromechanics"
 COMMAND = "python scripts/terzaghi_convergence.py"

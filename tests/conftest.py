@@ -101,7 +101,8 @@ def load_script(name: str):
 
 def config_error(raw) -> str:
     """The one-line ConfigError message a raw scene mapping is refused with."""
-    from poromech.config import ConfigError, scene_from_dict
+    from poromech.errors import ConfigError
+    from poromech.scene.loading import scene_from_dict
 
     with pytest.raises(ConfigError) as info:
         scene_from_dict(raw)

@@ -10,9 +10,10 @@ import pytest
 from conftest import load_script
 
 import poromech
-from poromech.config import ConfigError, load_scene, load_scene_and_raw
-from poromech.results import STATES, open_results, read_table
+from poromech.errors import ConfigError
+from poromech.io.results import STATES, open_results, read_table
 from poromech.run import run_scene
+from poromech.scene.loading import load_scene, load_scene_and_raw
 
 COARSE = ["mesh.size=0.5", "mesh.fracture_size=0.2", "mesh.tip_size=0.1"]
 

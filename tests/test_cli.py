@@ -9,7 +9,7 @@ import h5py
 import numpy as np
 from conftest import ROOT, mpirun
 
-from poromech.output import CSV_COLUMNS
+from poromech.io.output import CSV_COLUMNS
 
 POROMECH = [sys.executable, "-m", "poromech"]
 

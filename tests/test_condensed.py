@@ -1,4 +1,5 @@
-"""The condensed solve of ``mixed`` (poromech/condensed.py): the face problem is the assembled
+"""The condensed solve of ``mixed`` (poromech/mechanics/condensed.py): the face problem is the
+assembled
 one, and the condensed solution is the regular Newton's."""
 
 import numpy as np
@@ -7,9 +8,9 @@ from conftest import ROOT
 from mpi4py import MPI
 from petsc4py import PETSc
 
-import poromech.condensed as condensed
-from poromech.config import load_scene
+import poromech.mechanics.condensed as condensed
 from poromech.run import MechanicsSimulation, build_mesh
+from poromech.scene.loading import load_scene
 from poromech.timing import Timer
 
 comm = MPI.COMM_WORLD
@@ -145,7 +146,7 @@ def test_a_block_held_only_by_contact_is_solved_without_condensation(caplog):
     regular Newton solves it (with MUMPS' null-pivot detection)."""
     from conftest import mechanics_scene
 
-    from poromech.config import scene_from_dict
+    from poromech.scene.loading import scene_from_dict
 
     raw = mechanics_scene(contact={"formulation": "mixed", "friction_coefficient": 0.5})
     raw["geometry"]["fractures"] = [{"name": "fault", "points": [[0.0, 0.5], [2.0, 0.5]]}]

@@ -8,14 +8,9 @@ import pytest
 import yaml
 from conftest import ROOT, config_error, load_script, mechanics_scene
 
-from poromech.config import (
-    ConfigError,
-    apply_overrides,
-    load_scene,
-    scene_from_dict,
-    shipped_scenes,
-)
-from poromech.expressions import ExpressionError, compile_expression
+from poromech.errors import ConfigError
+from poromech.scene.expressions import ExpressionError, compile_expression
+from poromech.scene.loading import apply_overrides, load_scene, scene_from_dict, shipped_scenes
 
 
 def _error(raw) -> str:

@@ -9,10 +9,10 @@ import pytest
 from conftest import ROOT
 from mpi4py import MPI
 
-from poromech.config import load_scene
 from poromech.run import MechanicsSimulation, build_mesh
+from poromech.scene.loading import load_scene
 from poromech.timing import Timer
-from poromech.verification import exact_jump, jump_errors
+from poromech.verification.jumps import exact_jump, jump_errors
 
 comm = MPI.COMM_WORLD
 FORMULATIONS = ["nitsche", "mean_nitsche", "stabilized_mixed", "mixed"]
@@ -179,7 +179,7 @@ def test_states_agree_with_the_written_face_means(formulation):
 
 def test_readme_defines_contact_states():
     """README: the state definition, and codes in fractures.xdmf against words in fractures.csv."""
-    from poromech.mechanics import STATE_NAMES
+    from poromech.mechanics.model import STATE_NAMES
 
     text = (ROOT / "README.md").read_text()
     assert "**Contact states.**" in text
@@ -201,7 +201,7 @@ def test_face_means_use_the_contact_quadrature():
 
 # -- Nitsche parameters (issue 7 §3) ------------------------------------------------------------
 def model_of(name: str, *overrides: str):
-    from poromech.mechanics import MechanicsModel
+    from poromech.mechanics.model import MechanicsModel
 
     scene = load_scene(ROOT / "configs" / f"{name}.yaml", list(overrides))
     fm = build_mesh(scene, comm)
@@ -250,9 +250,9 @@ def test_coercivity_ratio_bounds_the_global_eigenvalue(degree):
     import ufl
     from dolfinx import fem
 
-    from poromech.coercivity import _traction_form, symmetric_nitsche_ratio
     from poromech.forms.elasticity import elastic_form
-    from poromech.mesh import FRACTURE_TAG, fracture_measure
+    from poromech.mechanics.coercivity import _traction_form, symmetric_nitsche_ratio
+    from poromech.mesh.fractured import FRACTURE_TAG, fracture_measure
 
     scene, fm, model = model_of("inclined_crack_slip", f"degree={degree}", "mesh.size=0.5",
                                 "mesh.tip_size=0.05", "mesh.fracture_size=0.2")

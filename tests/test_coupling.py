@@ -15,10 +15,10 @@ from petsc4py import PETSc
 
 from poromech import stepping
 from poromech.analytic import terzaghi_parameters, terzaghi_pressure, terzaghi_settlement
-from poromech.config import load_scene
 from poromech.errors import SolverError
+from poromech.io.xdmf import read_series
 from poromech.run import run_scene
-from poromech.xdmf import read_series
+from poromech.scene.loading import load_scene
 
 comm = MPI.COMM_WORLD
 TERZAGHI = ROOT / "configs" / "terzaghi.yaml"
@@ -219,10 +219,10 @@ def test_one_rank_equals_two_ranks(tmp_path, formulation):
 
 
 def test_only_what_a_scene_needs_is_built(tmp_path):
-    from poromech.coupling import PoromechanicsSimulation
-    from poromech.flow.driver import FlowSimulation
+    from poromech.coupling.poromechanics import PoromechanicsSimulation
+    from poromech.flow.physics import FlowSimulation
+    from poromech.mechanics.physics import MechanicsSimulation
     from poromech.run import build_mesh, make_simulation
-    from poromech.simulation import MechanicsSimulation
     from poromech.timing import Timer
 
     def build(path, *overrides):
@@ -291,7 +291,8 @@ def test_mixed_complementarity_parameter_changes_the_newton_path_not_the_solutio
 
 
 def test_condensed_mixed_reaches_the_fixed_point_of_the_regular_newton(tmp_path):
-    """The condensed contact solve of ``mixed`` (poromech/condensed.py) inside ``g``: on the
+    """The condensed contact solve of ``mixed`` (poromech/mechanics/condensed.py) inside ``g``: on
+    the
     three loading steps of the coupled six-fracture scene the same ``g`` evaluations, states,
     apertures and pressures as with the regular Newton, no Newton iteration of the whole system
     and no factorization but the two of its set-up."""
@@ -394,7 +395,7 @@ def test_a_contact_solve_that_fails_inside_g_is_continued_from_the_last_converge
     again from the unknowns and pressures of the last converged contact solve, in two steps of
     pressure, it converges, and so does the step, without a cut; the continuation's Newton
     iterations count in that g. Without it the step fails."""
-    from poromech import coupling
+    from poromech.coupling import poromechanics as coupling
 
     sets = ["contact.formulation=nitsche", "time={times: [20.0, 30.0], max_cuts: 0}"]
     with caplog.at_level(logging.DEBUG, logger="poromech"):

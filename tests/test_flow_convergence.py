@@ -3,7 +3,7 @@
 import numpy as np
 from mpi4py import MPI
 
-from poromech.flow.verification import Diffusion1D, JumpSolution, build_mesh, observed_orders
+from poromech.verification.flow import Diffusion1D, JumpSolution, build_mesh, observed_orders
 
 comm = MPI.COMM_WORLD
 

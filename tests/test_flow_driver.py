@@ -9,10 +9,10 @@ from conftest import ROOT, network_geometry
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from poromech.config import ConfigError, load_scene, scene_from_dict
-from poromech.errors import SolverError
-from poromech.flow.driver import run_flow
+from poromech.errors import ConfigError, SolverError
+from poromech.flow.physics import run_flow
 from poromech.run import RunContext, build_mesh, run_scene
+from poromech.scene.loading import load_scene, scene_from_dict
 from poromech.timing import Timer
 
 comm = MPI.COMM_WORLD

@@ -12,9 +12,9 @@ import pytest
 from conftest import ROOT
 from mpi4py import MPI
 
-from poromech.config import load_scene
-from poromech.probes import line_differences, read_csv
+from poromech.io.probes import line_differences, read_csv
 from poromech.run import run_scene
+from poromech.scene.loading import load_scene
 
 REFERENCE = ROOT / "data" / "fracture_flow_2d"
 

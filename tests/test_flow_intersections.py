@@ -14,7 +14,6 @@ from conftest import ROOT
 from mpi4py import MPI
 from test_flow_patch import network, properties
 
-from poromech.config import load_scene
 from poromech.flow.balance import compute_fluxes, mass_balance
 from poromech.flow.boundary import FlowBoundary
 from poromech.flow.hfv import fracture_half_transmissibilities
@@ -24,12 +23,8 @@ from poromech.flow.intersections import (
     series_transmissibilities,
 )
 from poromech.flow.problem import DarcyProblem, fracture_conductivity
-from poromech.flow.verification import (
-    barrier_metrics,
-    barrier_scene,
-    build_mesh,
-    solve_scene,
-)
+from poromech.scene.loading import load_scene
+from poromech.verification.flow import barrier_metrics, barrier_scene, build_mesh, solve_scene
 
 comm = MPI.COMM_WORLD
 

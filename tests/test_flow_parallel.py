@@ -10,21 +10,21 @@ from conftest import ROOT, network_geometry, run_parallel
 from mpi4py import MPI
 from test_flow_driver import flow_scene
 
-from poromech.config import scene_from_dict
 from poromech.flow.balance import boundary_fluxes, compute_fluxes
 from poromech.flow.boundary import FlowBoundary
-from poromech.flow.driver import run_flow
+from poromech.flow.physics import run_flow
 from poromech.flow.problem import DarcyProblem, FlowProperties
-from poromech.flow.verification import (
+from poromech.run import RunContext
+from poromech.run import build_mesh as build_mesh_of_scene
+from poromech.scene.loading import scene_from_dict
+from poromech.timing import Timer
+from poromech.verification.flow import (
     barrier_metrics,
     barrier_scene,
     build_mesh,
     rectangle,
     solve_scene,
 )
-from poromech.run import RunContext
-from poromech.run import build_mesh as build_mesh_of_scene
-from poromech.timing import Timer
 
 TOL = 1e-8
 

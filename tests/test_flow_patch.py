@@ -10,7 +10,7 @@ from poromech.flow.boundary import FlowBoundary
 from poromech.flow.hfv import isotropic_tensor, permeability_tensors
 from poromech.flow.problem import DarcyProblem, FlowProperties
 from poromech.flow.shift import TraceShift
-from poromech.flow.verification import build_mesh, rectangle
+from poromech.verification.flow import build_mesh, rectangle
 
 comm = MPI.COMM_WORLD
 LAMBDA = np.array([[2.0, 0.5], [0.5, 1.0]])
@@ -228,7 +228,7 @@ def test_owned_cell_values_follow_flow_order():
     """A DG0 field read with owned_cell_values matches the flow cell order (centroids)."""
     from dolfinx import fem
 
-    from poromech.flow.entities import cell_geometry, owned_cell_values
+    from poromech.mesh.entities import cell_geometry, owned_cell_values
 
     fm = build_mesh(comm, rectangle(0, 0, 1, 1), 0.2)
     f = fem.Function(fem.functionspace(fm.msh, ("DG", 0)))

@@ -16,10 +16,11 @@ import yaml
 from conftest import ROOT, mechanics_scene, mpirun, run_parallel
 
 from poromech.cli import main
-from poromech.config import ConfigError, apply_overrides, load_scene, scene_from_dict
-from poromech.expressions import ExpressionError, compile_expression
-from poromech.outdir import LOCK_NAME, OutputDirError, output_directory
+from poromech.errors import ConfigError
+from poromech.io.outdir import LOCK_NAME, OutputDirError, output_directory
 from poromech.petsc_options import PetscOptionError, check_petsc_options
+from poromech.scene.expressions import ExpressionError, compile_expression
+from poromech.scene.loading import apply_overrides, load_scene, scene_from_dict
 
 POROMECH = [sys.executable, "-m", "poromech"]
 
@@ -252,9 +253,9 @@ def test_meshes_too_large_for_memory(tmp_path, capsys):
 
 
 def test_cell_estimate_matches_gmsh():
-    from poromech.config import plane_geometry
-    from poromech.meshing import MeshSizes, generate_mesh
-    from poromech.resources import estimate_cells
+    from poromech.mesh.generate import MeshSizes, generate_mesh
+    from poromech.scene.geometry import plane_geometry
+    from poromech.scene.resources import estimate_cells
 
     scene = load_scene(None)
     geo, m = plane_geometry(scene), scene.mesh
@@ -302,9 +303,9 @@ def test_messages_show_plain_numbers_and_names():
 def _mesh(scene):
     from mpi4py import MPI
 
-    from poromech.config import plane_geometry
-    from poromech.mesh import create_fractured_mesh
-    from poromech.meshing import MeshSizes, generate_mesh
+    from poromech.mesh.fractured import create_fractured_mesh
+    from poromech.mesh.generate import MeshSizes, generate_mesh
+    from poromech.scene.geometry import plane_geometry
 
     geo, m = plane_geometry(scene), scene.mesh
     f = m.fracture_size or m.size
@@ -313,7 +314,7 @@ def _mesh(scene):
 
 
 def test_fields_checked_at_mesh_points():
-    from poromech.fieldcheck import validate_fields
+    from poromech.scene.fields import validate_fields
 
     scene = scene_from_dict(mechanics_scene(mesh={"size": 0.2}))
     fm, arrays = _mesh(scene)
@@ -339,7 +340,7 @@ def test_fields_checked_at_mesh_points():
 
 
 def test_flow_fields_checked_at_mesh_points():
-    from poromech.fieldcheck import validate_fields
+    from poromech.scene.fields import validate_fields
 
     scene = scene_from_dict(flow_scene())
     fm, arrays = _mesh(scene)
@@ -451,11 +452,13 @@ def test_fields_checked_at_mesh_points_under_mpi():
         import dataclasses, json
         import dolfinx_solver
         from mpi4py import MPI
-        from poromech.config import ConfigError, plane_geometry, scene_from_dict
-        from poromech.expressions import compile_expression
-        from poromech.fieldcheck import validate_fields
-        from poromech.mesh import create_fractured_mesh
-        from poromech.meshing import MeshSizes, generate_mesh
+        from poromech.errors import ConfigError
+        from poromech.scene.geometry import plane_geometry
+        from poromech.scene.loading import scene_from_dict
+        from poromech.scene.expressions import compile_expression
+        from poromech.scene.fields import validate_fields
+        from poromech.mesh.fractured import create_fractured_mesh
+        from poromech.mesh.generate import MeshSizes, generate_mesh
         comm = MPI.COMM_WORLD
         scene = scene_from_dict({mechanics_scene(mesh={"size": 0.2})!r})
         geo = plane_geometry(scene)

@@ -9,11 +9,12 @@ from conftest import mechanics_scene, run_parallel
 from dolfinx import fem
 from mpi4py import MPI
 
-from poromech.config import plane_geometry, scene_from_dict
-from poromech.geometry import segment_normals
-from poromech.mesh import FRACTURE_TAG, crack_vertices, cracked_space, fracture_measure
-from poromech.meshing import generate_mesh
-from poromech.run import build_mesh, mesh_sizes
+from poromech.geometry.plane import segment_normals
+from poromech.mesh.fractured import FRACTURE_TAG, crack_vertices, cracked_space, fracture_measure
+from poromech.mesh.generate import generate_mesh
+from poromech.run import build_mesh
+from poromech.scene.geometry import mesh_sizes, plane_geometry
+from poromech.scene.loading import scene_from_dict
 
 comm = MPI.COMM_WORLD
 
@@ -69,7 +70,7 @@ def test_crack_vertices_counts():
 def test_orientation_and_coincident_points(network):
     """∫ n('+')·n_ref dS = |Γ| with n_ref from the polylines; ∫ |x⁺ - x⁻|² dS = 0."""
     scene, fm = network
-    from poromech.mechanics import _facet_submesh
+    from poromech.mechanics.model import _facet_submesh
 
     sub, emap = _facet_submesh(fm)
     Q = fem.functionspace(sub, ("DG", 0, (2,)))
@@ -130,7 +131,7 @@ def test_refinement_family():
 
 def test_six_fracture_family_matches_paper():
     """The default scene's mesh family has about 2855·4^m cells and 88·2^m fracture faces."""
-    from poromech.config import load_scene
+    from poromech.scene.loading import load_scene
 
     scene = load_scene(None)
     a = generate_mesh(plane_geometry(scene), mesh_sizes(scene))
@@ -144,10 +145,11 @@ def test_parallel_dofs_and_partition_on_fracture():
     import json, numpy as np
     import dolfinx_solver
     from mpi4py import MPI
-    from poromech.config import scene_from_dict, plane_geometry
-    from poromech.meshing import generate_mesh
-    from poromech.mesh import create_fractured_mesh, cracked_space
-    from poromech.run import mesh_sizes
+    from poromech.scene.loading import scene_from_dict
+    from poromech.scene.geometry import plane_geometry
+    from poromech.mesh.generate import generate_mesh
+    from poromech.mesh.fractured import create_fractured_mesh, cracked_space
+    from poromech.scene.geometry import mesh_sizes
     import sys; sys.path.insert(0, "tests")
     from conftest import mechanics_scene
     comm = MPI.COMM_WORLD

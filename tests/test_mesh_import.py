@@ -19,11 +19,12 @@ import pytest
 from conftest import ROOT, config_error, mechanics_scene, network_geometry, run_parallel
 from mpi4py import MPI
 
-from poromech.config import load_scene, plane_geometry, scene_from_dict
-from poromech.mesh import create_fractured_mesh
-from poromech.mesh_import import import_mesh
-from poromech.meshing import generate_mesh
-from poromech.run import build_mesh, mesh_sizes, run_scene
+from poromech.mesh.fractured import create_fractured_mesh
+from poromech.mesh.generate import generate_mesh
+from poromech.mesh.imported import import_mesh
+from poromech.run import build_mesh, run_scene
+from poromech.scene.geometry import mesh_sizes, plane_geometry
+from poromech.scene.loading import load_scene, scene_from_dict
 
 SIX = [str(i) for i in range(1, 7)]
 SIDES = ("bottom", "right", "top", "left")
@@ -322,7 +323,7 @@ def test_mesh_scene_under_mpi(six_runs, tmp_path):
     import json
     import dolfinx_solver
     from mpi4py import MPI
-    from poromech.config import load_scene
+    from poromech.scene.loading import load_scene
     from poromech.parallel import on_root
     from poromech.run import run_scene
     comm = MPI.COMM_WORLD

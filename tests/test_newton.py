@@ -5,9 +5,9 @@ import pytest
 from conftest import ROOT
 from mpi4py import MPI
 
-from poromech.config import load_scene
 from poromech.errors import SolverError
 from poromech.run import MechanicsSimulation, build_mesh
+from poromech.scene.loading import load_scene
 from poromech.timing import Timer
 
 comm = MPI.COMM_WORLD
@@ -165,8 +165,8 @@ def test_stale_budget_refactorizes_once_stale_solves_cost_a_factorization():
 
 # -- helpers on the model/solver layer ----------------------------------------------------------
 def model_and_solver(name: str, *overrides: str, solver_class=None):
-    from poromech.mechanics import MechanicsModel
-    from poromech.newton import SemiSmoothNewton
+    from poromech.mechanics.model import MechanicsModel
+    from poromech.mechanics.newton import SemiSmoothNewton
 
     scene = load_scene(ROOT / "configs" / f"{name}.yaml", list(overrides))
     fm = build_mesh(scene, comm)
@@ -253,7 +253,7 @@ def test_non_finite_initial_residual_ends_the_solve(bad):
 
 def test_nan_residual_during_the_line_search_ends_the_solve():
     """Every trial residual NaN after two evaluations: the solve ends with the NaN reason."""
-    from poromech.newton import SemiSmoothNewton
+    from poromech.mechanics.newton import SemiSmoothNewton
 
     class NaNAfterTwo(SemiSmoothNewton):
         def _residual(self, snes, x, b):

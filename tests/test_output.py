@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from conftest import ROOT
 
-from poromech.xdmf import read_series
+from poromech.io.xdmf import read_series
 
 SCENE = str(ROOT / "configs" / "six_fractures_mechanics.yaml")
 POROMECH = [sys.executable, "-m", "poromech"]

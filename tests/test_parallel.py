@@ -8,8 +8,8 @@ import pytest
 from conftest import mechanics_scene, run_parallel
 from mpi4py import MPI
 
-from poromech.config import scene_from_dict
 from poromech.run import MechanicsSimulation, build_mesh
+from poromech.scene.loading import scene_from_dict
 from poromech.timing import Timer
 
 CODE = """
@@ -18,10 +18,12 @@ import dolfinx_solver
 from mpi4py import MPI
 sys.path.insert(0, "tests")
 from conftest import mechanics_scene
-from poromech.config import scene_from_dict, plane_geometry
-from poromech.meshing import generate_mesh
-from poromech.mesh import create_fractured_mesh
-from poromech.run import MechanicsSimulation, mesh_sizes
+from poromech.scene.loading import scene_from_dict
+from poromech.scene.geometry import plane_geometry
+from poromech.mesh.generate import generate_mesh
+from poromech.mesh.fractured import create_fractured_mesh
+from poromech.run import MechanicsSimulation
+from poromech.scene.geometry import mesh_sizes
 from poromech.timing import Timer
 comm = MPI.COMM_WORLD
 scene = scene_from_dict(json.loads('''SCENE'''))

@@ -1,4 +1,4 @@
-"""Pictures (poromech.plot, ``poromech plot``) and the outputs as VTK reads them (pyvista).
+"""Pictures (poromech.io.plot, ``poromech plot``) and the outputs as VTK reads them (pyvista).
 
 The pyvista check is the test-suite twin of ``scripts/paraview_check.py``: every series of a
 mechanics, a flow and a coupled run, and of a run killed with SIGKILL, loads through VTK's XDMF
@@ -15,8 +15,7 @@ import numpy as np
 import pytest
 from conftest import ROOT
 
-from poromech.config import load_scene
-from poromech.plot import (
+from poromech.io.plot import (
     MAX_PNG_BYTES,
     choose_backend,
     fracture_edges,
@@ -24,8 +23,9 @@ from poromech.plot import (
     nice_scale,
     plot_run,
 )
-from poromech.results import open_results
+from poromech.io.results import open_results
 from poromech.run import run_scene
+from poromech.scene.loading import load_scene
 
 #: Coarse meshes of the six-fracture network (~300 cells): each run takes a second or two.
 TINY = ["mesh.size=0.25", "mesh.fracture_size=0.125"]
@@ -86,7 +86,7 @@ def test_fracture_sides_give_the_written_jumps(runs, run):
 
 
 def test_mesh_edges_of_a_p2_split_triangle():
-    # the P2 triangle 0-5 split as poromech.output._P2_SPLIT: the six outer half-edges only
+    # the P2 triangle 0-5 split as poromech.io.output._P2_SPLIT: the six outer half-edges only
     split = np.array([[0, 5, 4], [5, 1, 3], [4, 3, 2], [5, 3, 4]])
     assert sorted(map(tuple, mesh_edges(split))) == [(0, 4), (0, 5), (1, 3), (1, 5), (2, 3),
                                                        (2, 4)]

@@ -5,8 +5,8 @@ import pytest
 from conftest import mechanics_scene
 from mpi4py import MPI
 
-from poromech.config import scene_from_dict
 from poromech.errors import SolverError
+from poromech.scene.loading import scene_from_dict
 from poromech.stepping import StepResult, run_steps
 
 

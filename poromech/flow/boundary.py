@@ -20,7 +20,7 @@ import numpy as np
 import numpy.typing as npt
 
 from poromech.flow.dofs import FlowDofs
-from poromech.flow.entities import CellGeometry
+from poromech.mesh.entities import CellGeometry
 
 __all__ = ["BoundaryDofs", "FlowBoundary", "boundary_dofs", "edges_at"]
 

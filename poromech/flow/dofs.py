@@ -25,8 +25,8 @@ import numpy as np
 import numpy.typing as npt
 from mpi4py import MPI
 
-from poromech.flow.entities import CellGeometry, facet_vertices, vertex_coordinates
-from poromech.mesh import FracturedMesh
+from poromech.mesh.entities import CellGeometry, facet_vertices, vertex_coordinates
+from poromech.mesh.fractured import FracturedMesh
 
 __all__ = ["KINDS", "FlowDofs", "number_dofs"]
 

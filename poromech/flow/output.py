@@ -6,7 +6,7 @@
 ``fractures.xdmf``) holds, on the fracture faces: ``p_f`` (Pa), the traces ``p_plus``/``p_minus``
 (Pa), the aperture ``d_f`` (m), the tangential volumetric flux ``q_f`` (vector, m²/s per unit
 depth) and the normal fluxes ``u_plus``/``u_minus`` from each matrix side into the fracture
-(m/s). The series are crash-safe (:mod:`poromech.xdmf`).
+(m/s). The series are crash-safe (:mod:`poromech.io.xdmf`).
 """
 
 from __future__ import annotations
@@ -17,8 +17,8 @@ import numpy as np
 
 from poromech.flow.balance import Fluxes, cell_velocity
 from poromech.flow.problem import DarcyProblem
-from poromech.output import fracture_mesh, matrix_mesh
-from poromech.xdmf import XDMFSeries
+from poromech.io.output import fracture_mesh, matrix_mesh
+from poromech.io.xdmf import XDMFSeries
 
 __all__ = ["FlowWriter", "fracture_fields", "matrix_fields"]
 

@@ -27,7 +27,6 @@ from petsc4py import PETSc
 from poromech.flow import hfv
 from poromech.flow.boundary import FlowBoundary, boundary_dofs
 from poromech.flow.dofs import FlowDofs, number_dofs
-from poromech.flow.entities import CellGeometry, cell_geometry
 from poromech.flow.intersections import (
     FractureCrossings,
     crossing_resistance,
@@ -43,7 +42,8 @@ from poromech.flow.system import (
     pair_elements,
     shifted_cell_elements,
 )
-from poromech.mesh import FracturedMesh
+from poromech.mesh.entities import CellGeometry, cell_geometry
+from poromech.mesh.fractured import FracturedMesh
 
 __all__ = [
     "DarcyProblem",

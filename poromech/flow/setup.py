@@ -10,14 +10,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from poromech.expressions import Expression
 from poromech.flow.boundary import FlowBoundary
-from poromech.flow.entities import CellGeometry, cell_geometry
 from poromech.flow.hfv import permeability_tensors
 from poromech.flow.problem import DarcyProblem, FlowProperties
-from poromech.geometry import PlaneGeometry
-from poromech.mesh import FracturedMesh
-from poromech.scene import Flow, Scene
+from poromech.geometry.plane import PlaneGeometry
+from poromech.mesh.entities import CellGeometry, cell_geometry
+from poromech.mesh.fractured import FracturedMesh
+from poromech.scene.expressions import Expression
+from poromech.scene.schema import Flow, Scene
 
 __all__ = ["flow_boundaries", "flow_properties", "problem_from_scene", "time_dependent"]
 

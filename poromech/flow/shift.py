@@ -28,7 +28,7 @@ import numpy as np
 import numpy.typing as npt
 
 from poromech.flow.dofs import FlowDofs
-from poromech.mesh import FracturedMesh
+from poromech.mesh.fractured import FracturedMesh
 
 __all__ = ["SHIFT_RATIO", "TraceShift"]
 

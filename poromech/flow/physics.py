@@ -14,15 +14,15 @@ from typing import Any
 
 import numpy as np
 
-from poromech.checkpoint import Keyed
 from poromech.errors import SolverError
 from poromech.flow.balance import boundary_fluxes, compute_fluxes, mass_balance
 from poromech.flow.hfv import cell_gradients
 from poromech.flow.output import FlowWriter
 from poromech.flow.problem import DarcyProblem, TimeStep
 from poromech.flow.setup import flow_properties, problem_from_scene, time_dependent
-from poromech.probes import LineSampler, write_csv
-from poromech.scene import Scene
+from poromech.io.checkpoint import Keyed
+from poromech.io.probes import LineSampler, write_csv
+from poromech.scene.schema import Scene
 from poromech.stepping import StepResult, run_steps
 
 __all__ = ["FlowSimulation", "run_flow", "solve_record", "write_probes"]

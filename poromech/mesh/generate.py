@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from poromech.geometry import PlaneGeometry, arc_length_positions
+from poromech.geometry.plane import PlaneGeometry, arc_length_positions
 
 __all__ = ["MeshArrays", "MeshSizes", "generate_mesh", "gmsh_session"]
 

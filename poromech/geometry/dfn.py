@@ -9,9 +9,10 @@ Two layouts, told apart by the header (column names are case-insensitive, in any
 * one row per polyline point, ``fracture,x,y``: the rows of a fracture follow each other, in the
   order of its polyline.
 
-The order of a fracture's points fixes ``n⁺`` (the left normal, :mod:`poromech.geometry`). Blank
+The order of a fracture's points fixes ``n⁺`` (the left normal,
+:mod:`poromech.geometry.plane`). Blank
 lines and lines starting with ``#`` are skipped. Only reading and the row rules are checked
-here; the network is then checked like a YAML one (:func:`poromech.geometry.check_geometry`).
+here; the network is then checked like a YAML one (:func:`poromech.geometry.plane.check_geometry`).
 """
 
 from __future__ import annotations

@@ -14,7 +14,7 @@ import dolfinx
 import numpy as np
 import numpy.typing as npt
 
-from poromech.mesh import FracturedMesh
+from poromech.mesh.fractured import FracturedMesh
 
 __all__ = [
     "CellGeometry",

@@ -26,8 +26,8 @@ import numpy.typing as npt
 from dolfinx import fem
 from mpi4py import MPI
 
-from poromech.mesh import FracturedMesh
-from poromech.xdmf import atomic_h5, gather_rows, root_write
+from poromech.io.xdmf import atomic_h5, gather_rows, root_write
+from poromech.mesh.fractured import FracturedMesh
 
 __all__ = [
     "CHECKPOINT",

@@ -16,7 +16,7 @@ import numpy.typing as npt
 from dolfinx import fem
 from mpi4py import MPI
 
-from poromech.mesh import FracturedMesh
+from poromech.mesh.fractured import FracturedMesh
 
 __all__ = ["FaceQuadrature", "face_quadrature", "jump_errors", "jump_values"]
 

@@ -1,6 +1,6 @@
 """The contact-mechanics physics behind the time loop (:mod:`poromech.stepping`).
 
-:class:`MechanicsSimulation` owns the :class:`~poromech.mechanics.MechanicsModel`, its
+:class:`MechanicsSimulation` owns the :class:`~poromech.mechanics.model.MechanicsModel`, its
 semi-smooth Newton and its writers; it is used on its own (``physics: mechanics``) and inside the
 coupled poromechanics solver.
 """
@@ -15,18 +15,18 @@ import dolfinx_solver  # noqa: F401
 import numpy as np
 from petsc4py import PETSc
 
-from poromech.checkpoint import (
+from poromech.io.checkpoint import (
     cell_dof_rows,
     face_dof_rows,
     set_cell_dof_rows,
     set_face_dof_rows,
 )
-from poromech.mesh import FracturedMesh
-from poromech.output import FractureTable, displacement_mesh, fracture_mesh, owned_blocks
-from poromech.scene import Scene
+from poromech.io.output import FractureTable, displacement_mesh, fracture_mesh, owned_blocks
+from poromech.io.xdmf import XDMFSeries
+from poromech.mesh.fractured import FracturedMesh
+from poromech.scene.schema import Scene
 from poromech.stepping import StepResult, run_steps
 from poromech.timing import Timer
-from poromech.xdmf import XDMFSeries
 
 __all__ = ["MechanicsSimulation", "formulation_options"]
 
@@ -73,8 +73,8 @@ class MechanicsSimulation:
         timer: Wall-time accounting.
 
     Attributes:
-        model: The :class:`~poromech.mechanics.MechanicsModel` (holds the current unknowns).
-        solver: The :class:`~poromech.newton.SemiSmoothNewton`.
+        model: The :class:`~poromech.mechanics.model.MechanicsModel` (holds the current unknowns).
+        solver: The :class:`~poromech.mechanics.newton.SemiSmoothNewton`.
         records: One JSON-ready record per completed step (filled by :meth:`run`).
     """
 
@@ -83,8 +83,8 @@ class MechanicsSimulation:
                 "time_linear")
 
     def __init__(self, scene: Scene, fm: FracturedMesh, timer: Timer):
-        from poromech.mechanics import MechanicsModel
-        from poromech.newton import SemiSmoothNewton
+        from poromech.mechanics.model import MechanicsModel
+        from poromech.mechanics.newton import SemiSmoothNewton
 
         self.scene, self.timer, self.fm = scene, timer, fm
         singular = scene.contact.formulation == "mixed" and scene.degree == 1
@@ -116,9 +116,9 @@ class MechanicsSimulation:
         self._table: FractureTable | None = None
 
     def _condensed(self):
-        """A :class:`~poromech.condensed.CondensedContact` where it applies, else None."""
-        from poromech.condensed import MAX_FACE_UNKNOWNS, CondensedContact, applicable
-        from poromech.newton import _is_direct
+        """A :class:`~poromech.mechanics.condensed.CondensedContact` where it applies, else None."""
+        from poromech.mechanics.condensed import MAX_FACE_UNKNOWNS, CondensedContact, applicable
+        from poromech.mechanics.newton import _is_direct
 
         m, scene, ksp = self.model, self.scene, self.solver.snes.getKSP()
         if not (scene.solver.condensation and m.lam is not None
@@ -228,7 +228,7 @@ class MechanicsSimulation:
 
     def face_output(self) -> dict[str, np.ndarray]:
         """The written face fields and states of the owned fracture faces."""
-        from poromech.mechanics import FACE_FIELDS
+        from poromech.mechanics.model import FACE_FIELDS
 
         values = self.model.face_fields()
         out = {name: values[:, FACE_FIELDS.index(name)]

@@ -32,14 +32,14 @@ from petsc4py import PETSc
 
 from poromech.errors import SolverError
 from poromech.flow.balance import compute_fluxes, mass_balance
-from poromech.flow.driver import flow_report, flow_state, restore_pressure
 from poromech.flow.output import FlowWriter
+from poromech.flow.physics import flow_report, flow_state, restore_pressure
 from poromech.flow.problem import TimeStep
 from poromech.flow.setup import flow_properties, problem_from_scene, time_dependent
-from poromech.mesh import FracturedMesh
+from poromech.mechanics.physics import MechanicsSimulation, scalar_row
+from poromech.mesh.fractured import FracturedMesh
 from poromech.petsc_options import PrefixedOptions
-from poromech.scene import Scene
-from poromech.simulation import MechanicsSimulation, scalar_row
+from poromech.scene.schema import Scene
 from poromech.stepping import StepResult
 from poromech.timing import Timer
 
@@ -668,7 +668,7 @@ class _Counters:
         self.evaluations = 0
         self.iterations = 0  # fixed-point iterations, over every attempt of the step
         self.newton = []
-        self.face = 0  # iterations of the condensed face Newton (poromech.condensed)
+        self.face = 0  # iterations of the condensed face Newton (poromech.mechanics.condensed)
         self.factorizations = 0
         self.stale = 0
         self.darcy_iterations = 0

@@ -183,7 +183,7 @@ class SemiSmoothNewton:
         states: Callable returning the active-set codes of the owned contact points at the
             current unknowns, or None: the record's ``active_set_changes`` counts the codes that
             change from one iterate to the next. Pass
-            :meth:`~poromech.mechanics.MechanicsModel.active_set` (quadrature points for
+            :meth:`~poromech.mechanics.model.MechanicsModel.active_set` (quadrature points for
             pointwise Nitsche), so that a count of 0 means an unchanged Jacobian.
     """
 
@@ -236,7 +236,8 @@ class SemiSmoothNewton:
         self._factor_states = None  # active set of the factorized Jacobian
         self._assembled = True  # the matrix was assembled since the last factorization
         self.states_determine_jacobian = False
-        #: A :class:`~poromech.condensed.CondensedContact` that computes each solve's start
+        #: A :class:`~poromech.mechanics.condensed.CondensedContact` that computes each solve's
+        #: start
         #: (set by the owner), or None.
         self.condensed = None
         self.prefix = prefix
@@ -448,12 +449,13 @@ class SemiSmoothNewton:
         return r
 
     def _condensed_start(self) -> bool:
-        """Start from the condensed solution (:mod:`poromech.condensed`); True if it converged.
+        """Start from the condensed solution (:mod:`~poromech.mechanics.condensed`); True if it did.
 
         The residual at the current unknowns sets the reference norm exactly as the first
         iteration of the regular Newton would; the face problem is solved to a fraction of the
-        regular tolerance (:data:`poromech.condensed.SAFETY`), which the regular Newton then
-        checks with an assembled residual; a failed face Newton leaves the unknowns as they were.
+        regular tolerance (:data:`~poromech.mechanics.condensed.SAFETY`), which the regular Newton
+        then checks with an assembled residual; a failed face Newton leaves the unknowns as they
+        were.
         """
         t0 = time.perf_counter()
         self._residual(self.snes, self.x, self.b)

@@ -18,17 +18,18 @@ import numpy as np
 import numpy.typing as npt
 from mpi4py import MPI
 
-from poromech.config import load_scene, plane_geometry
 from poromech.flow.balance import boundary_fluxes, compute_fluxes, mass_balance
 from poromech.flow.boundary import FlowBoundary
 from poromech.flow.hfv import cell_gradients, isotropic_tensor
 from poromech.flow.problem import DarcyProblem, FlowProperties, TimeStep
 from poromech.flow.setup import problem_from_scene
-from poromech.geometry import PlaneGeometry
-from poromech.mesh import FracturedMesh, create_fractured_mesh
-from poromech.meshing import MeshSizes, generate_mesh
-from poromech.probes import LineSampler
-from poromech.scene import Scene
+from poromech.geometry.plane import PlaneGeometry
+from poromech.io.probes import LineSampler
+from poromech.mesh.fractured import FracturedMesh, create_fractured_mesh
+from poromech.mesh.generate import MeshSizes, generate_mesh
+from poromech.scene.geometry import plane_geometry
+from poromech.scene.loading import load_scene
+from poromech.scene.schema import Scene
 
 __all__ = [
     "BARRIER_VARIANTS",
@@ -261,7 +262,9 @@ def solve_scene(scene: Scene, comm: MPI.Comm, owner=None) -> DarcyProblem:
 
     ``owner(centroids) -> ranks`` optionally imposes the partition.
     """
-    from poromech.run import mesh_sizes  # the scene's sizes with their documented defaults
+    from poromech.scene.geometry import (
+        mesh_sizes,  # the scene's sizes with their documented defaults
+    )
 
     fm = mesh_with_sizes(comm, plane_geometry(scene), mesh_sizes(scene), owner)
     problem = problem_from_scene(scene, fm)

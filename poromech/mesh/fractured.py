@@ -29,8 +29,8 @@ from mpi4py import MPI
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from poromech.geometry import PlaneGeometry
-from poromech.meshing import MeshArrays
+from poromech.geometry.plane import PlaneGeometry
+from poromech.mesh.generate import MeshArrays
 
 __all__ = [
     "FractureFaces",

@@ -21,13 +21,13 @@ import ufl
 from dolfinx import fem
 from mpi4py import MPI
 
-from poromech.coercivity import symmetric_nitsche_ratio
-from poromech.expressions import Expression
 from poromech.forms import contact as cforms
 from poromech.forms.elasticity import biot_stress_form, elastic_form
 from poromech.forms.fracture import FractureKinematics, normal_jump, slip
-from poromech.mesh import FRACTURE_TAG, FracturedMesh, cracked_space, fracture_measure
-from poromech.scene import Contact, Scene
+from poromech.mechanics.coercivity import symmetric_nitsche_ratio
+from poromech.mesh.fractured import FRACTURE_TAG, FracturedMesh, cracked_space, fracture_measure
+from poromech.scene.expressions import Expression
+from poromech.scene.schema import Contact, Scene
 
 __all__ = ["FACE_FIELDS", "MechanicsModel", "SLIP_TOLERANCE", "STATE_NAMES"]
 
@@ -139,7 +139,7 @@ class MechanicsModel:
         """Contact parameters; ``β⁰`` defaults to multiples of the largest Young's modulus.
 
         Also sets ``beta0 = (β_n⁰, β_τ⁰)`` (Pa) and ``young_max`` (Pa, at t = 0), and warns when
-        θ = 1 is used below its coercivity bound (:mod:`poromech.coercivity`).
+        θ = 1 is used below its coercivity bound (:mod:`poromech.mechanics.coercivity`).
         """
         c, msh = self.scene.contact, self.fm.msh
         h = ufl.FacetArea(msh)("+")
@@ -535,7 +535,7 @@ class MechanicsModel:
     def condensation_jacobian(self) -> list[list[fem.Form | None]]:
         """The Jacobian with its multiplier rows replaced by the face mass matrix (``mixed``).
 
-        A constant matrix (:mod:`poromech.condensed`); compiled at the first call.
+        A constant matrix (:mod:`poromech.mechanics.condensed`); compiled at the first call.
         """
         if getattr(self, "_condensation", None) is None:
             V = self.lam.function_space

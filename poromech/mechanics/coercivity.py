@@ -28,7 +28,7 @@ from mpi4py import MPI
 
 from poromech.forms.elasticity import epsilon, sigma
 from poromech.forms.fracture import tangent
-from poromech.mesh import FRACTURE_TAG, FracturedMesh, fracture_measure
+from poromech.mesh.fractured import FRACTURE_TAG, FracturedMesh, fracture_measure
 
 __all__ = ["symmetric_nitsche_ratio"]
 

@@ -14,7 +14,7 @@ default), the PNGs that a run's outputs allow:
 Each picture is described once, backend-neutral (:class:`Picture`), and drawn by pyvista
 (off-screen VTK) or, when pyvista/VTK cannot be imported or cannot render off-screen, by
 matplotlib. Both come with the ``plot`` extra (``pip install 'poromech[plot]'``). Reading is
-serial (:mod:`poromech.results`); nothing here needs DOLFINx.
+serial (:mod:`poromech.io.results`); nothing here needs DOLFINx.
 """
 
 from __future__ import annotations
@@ -31,8 +31,8 @@ import numpy as np
 import numpy.typing as npt
 from scipy.spatial import cKDTree
 
-from poromech.results import STATES, Results, open_results
-from poromech.xdmf import Series
+from poromech.io.results import STATES, Results, open_results
+from poromech.io.xdmf import Series
 
 __all__ = [
     "BACKENDS",
@@ -70,7 +70,7 @@ WINDOW = (1400, 800)
 #: Largest PNG written (bytes): a larger picture is reduced to a 256-colour palette.
 MAX_PNG_BYTES = 300_000
 
-#: The P2 triangle split into four sub-triangles by :func:`poromech.output.displacement_mesh`:
+#: The P2 triangle split into four sub-triangles by :func:`poromech.io.output.displacement_mesh`:
 #: sub-triangles 0-2 hold one vertex each, sub-triangle 3 is the middle one, ``[5, 3, 4]``.
 #: These six half-edges (local nodes of sub-triangles 0, 1, 2) are the triangle's boundary.
 _P2_BOUNDARY = ((0, 0, 1), (0, 2, 0), (1, 0, 1), (1, 1, 2), (2, 1, 2), (2, 2, 0))
@@ -146,7 +146,7 @@ def _distance_to_segment(x: npt.NDArray, a: npt.NDArray, b: npt.NDArray) -> npt.
 def mesh_edges(cells: npt.NDArray) -> npt.NDArray[np.int64]:
     """Edges to draw as the mesh: the cell edges (the P2 sub-triangles' outer half-edges).
 
-    A displacement mesh written by :func:`poromech.output.displacement_mesh` for P2 holds four
+    A displacement mesh written by :func:`poromech.io.output.displacement_mesh` for P2 holds four
     sub-triangles per cell; its interior sub-edges are not mesh edges and are left out.
     """
     cells = np.asarray(cells)

@@ -1,6 +1,6 @@
 """The scene: a frozen, validated description of one simulation.
 
-Every field carries its unit, default and meaning in its metadata; ``poromech.config`` builds
+Every field carries its unit, default and meaning in its metadata; ``poromech.scene`` builds
 these classes from YAML (rejecting unknown keys and wrong types) and ``docs/scene_schema.md`` is
 generated from them. Expressions (``Expr``) are numbers or strings in ``x``, ``y``, ``t`` and the
 scene ``parameters``.
@@ -11,7 +11,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import ClassVar, Literal
 
-from poromech.expressions import Expression
+import numpy as np
+
+from poromech.scene.expressions import Expression
 
 __all__ = [
     "BoundaryCondition",
@@ -31,6 +33,7 @@ __all__ = [
     "Scene",
     "Solver",
     "TimeSpec",
+    "step_times",
 ]
 
 Expr = Expression
@@ -521,3 +524,13 @@ class Scene:
     )
     probes: tuple[Probe, ...] = field(default=(), metadata=doc("sampling lines"))
     output: Output = field(default_factory=Output, metadata=doc("output selection"))
+
+
+def step_times(scene: Scene) -> list[float]:
+    """End times of the steps: ``[0]`` for a static scene, else the uniform or listed times."""
+    spec = scene.time
+    if spec is None:
+        return [0.0]
+    if spec.times:
+        return [float(t) for t in spec.times]
+    return [float(t) for t in np.linspace(0.0, spec.final, spec.steps + 1)[1:]]

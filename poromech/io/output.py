@@ -8,7 +8,7 @@
 * ``fractures.csv`` gets one block of rows per output time, appended in one write.
 * ``summary.json`` is rewritten through a temporary file and a rename after every step.
 
-All series use :class:`poromech.xdmf.XDMFSeries` (one HDF5 file per step and an atomically
+All series use :class:`poromech.io.xdmf.XDMFSeries` (one HDF5 file per step and an atomically
 rewritten index), so a killed run leaves readable files for every completed step.
 """
 
@@ -29,8 +29,8 @@ from dolfinx import fem
 from mpi4py import MPI
 
 from poromech.errors import OutputError
-from poromech.mesh import FracturedMesh
-from poromech.xdmf import MeshPiece, atomic_write_text, root_write
+from poromech.io.xdmf import MeshPiece, atomic_write_text, root_write
+from poromech.mesh.fractured import FracturedMesh
 
 __all__ = [
     "CSV_COLUMNS",

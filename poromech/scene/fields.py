@@ -1,10 +1,10 @@
 """Every expression of a scene checked where the solvers evaluate it, once the mesh exists.
 
-Before meshing, :mod:`poromech.config` checks fields on a grid and boundary and fracture data
+Before meshing, :mod:`poromech.scene` checks fields on a grid and boundary and fracture data
 along their lines; a narrow strip of negative Young's modulus can fall between grid points.
 :func:`validate_fields` closes the gap after meshing and before the first solve: each expression
 is evaluated at the very points the solvers use, at every step time, and checked for finiteness
-and for the range of its field (``gt``, ``min``, ... in :mod:`poromech.scene`):
+and for the range of its field (``gt``, ``min``, ... in :mod:`poromech.scene.schema`):
 
 ================================  ===========================================================
 expression                        points
@@ -21,7 +21,7 @@ expression                        points
 ================================  ===========================================================
 
 The checks run on the owned entities of each rank; the first failure (in the order of the table,
-then by rank) is raised as the same one-line :class:`~poromech.config.ConfigError` on every rank.
+then by rank) is raised as the same one-line :class:`~poromech.scene.ConfigError` on every rank.
 """
 
 from __future__ import annotations
@@ -35,10 +35,11 @@ import dolfinx
 import numpy as np
 import numpy.typing as npt
 
-from poromech.config import ConfigError, check_expression, check_permeability
-from poromech.mesh import FracturedMesh
+from poromech.errors import ConfigError
+from poromech.mesh.fractured import FracturedMesh
 from poromech.parallel import agree
-from poromech.scene import Contact, Flow, FractureFlow, Material, Scene
+from poromech.scene.schema import Contact, Flow, FractureFlow, Material, Scene, step_times
+from poromech.scene.values import check_expression, check_permeability
 
 __all__ = ["validate_fields"]
 
@@ -190,14 +191,13 @@ def validate_fields(scene: Scene, fm: FracturedMesh) -> None:
     """Check every expression of a scene at the points where it is evaluated (collective).
 
     Call it after meshing and before the first solve. Finiteness and the range of each field are
-    checked at every step time (``poromech.stepping.step_times``; the initial pressure at t = 0).
+    checked at every step time (:func:`~poromech.scene.schema.step_times`; the initial
+    pressure at t = 0).
 
     Raises:
         ConfigError: On every rank, one line naming the key, the expression, the value and the
             point (the first failure in a partition-independent order).
     """
-    from poromech.stepping import step_times
-
     times = step_times(scene)
     p = _mesh_points(fm)
     checks: list[Check] = []

@@ -17,7 +17,8 @@ then
    search whose trial residuals cost a dense matrix-vector product, not an assembly;
 3. a second back-substitution: the displacement for the final ``λ``.
 
-The result is a candidate that the regular Newton (:class:`~poromech.newton.SemiSmoothNewton`)
+The result is a candidate that the regular Newton
+(:class:`~poromech.mechanics.newton.SemiSmoothNewton`)
 then checks with an assembled residual: it stops at iteration 0 when the candidate meets its
 tolerance, and otherwise iterates from it as usual, so the condensed solve changes the cost of a
 solve, never its answer or its convergence test. The face problem runs on rank 0 (MUMPS returns
@@ -249,8 +250,9 @@ class CondensedContact:
     """Condensed solves of a ``mixed`` contact problem (collective).
 
     Args:
-        model: The :class:`~poromech.mechanics.MechanicsModel` (``mixed``).
-        solver: Its :class:`~poromech.newton.SemiSmoothNewton` (vectors, residual, options).
+        model: The :class:`~poromech.mechanics.model.MechanicsModel` (``mixed``).
+        solver: Its :class:`~poromech.mechanics.newton.SemiSmoothNewton` (vectors, residual,
+            options).
 
     Raises:
         RuntimeError: When ``J₀`` cannot be factorized (the caller then solves without).

@@ -4,7 +4,7 @@ Serial and independent of DOLFINx: it reads the files that ``poromech run`` writ
 ``docs/outputs.md``) with h5py, the XDMF index and the CSV files::
 
     import poromech  # first: loads MPI before DOLFINx/PETSc (docs/api.md)
-    from poromech.results import open_results
+    from poromech.io.results import open_results
 
     res = open_results("results/six_fractures")
     res.summary["status"]                   # "converged", "running" (killed), "failed", ...
@@ -29,7 +29,7 @@ import numpy as np
 import numpy.typing as npt
 import yaml
 
-from poromech.xdmf import Series, read_series
+from poromech.io.xdmf import Series, read_series
 
 __all__ = ["STATES", "Results", "open_results", "read_table"]
 

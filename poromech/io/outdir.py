@@ -33,8 +33,8 @@ from pathlib import Path
 
 from mpi4py import MPI
 
-from poromech.config import check_name
 from poromech.parallel import on_root
+from poromech.scene.checks import check_name
 
 __all__ = [
     "LOCK_NAME",

@@ -6,7 +6,8 @@ killed. The estimates:
 
 * **cells** — gmsh's frontal-Delaunay triangles of edge length ``h`` have area about
   ``√3/4 h²``, so ``cells ≈ C ∫_Ω h(x)⁻² dx`` (:data:`CELLS_PER_AREA` = ``C``). The size field of
-  :mod:`poromech.meshing` grows linearly from ``fracture_size`` on a fracture (``tip_size`` at a
+  :mod:`poromech.mesh.generate` grows linearly from ``fracture_size`` on a fracture (``tip_size``
+  at a
   fracture end or junction) to ``size`` at the distance ``transition``; the integral is the
   domain at ``size`` plus, in closed form, the excess of a band along every fracture and of a
   disc at every fracture end. Each ``mesh.refinement`` level multiplies by 4. On the shipped
@@ -34,7 +35,7 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
-from poromech.geometry import PlaneGeometry
+from poromech.geometry.plane import PlaneGeometry
 
 __all__ = [
     "ResourceError",

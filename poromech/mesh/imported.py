@@ -3,9 +3,10 @@
 A mesh file gives the triangles of the domain and named groups of line elements (in gmsh, 1D
 physical groups). The scene says which groups are fractures and which groups make up each named
 boundary; this module turns them into what a generated mesh gives
-(:func:`poromech.meshing.generate_mesh`): the plane geometry (boundary polygon with named edges,
-fracture polylines; :class:`poromech.geometry.PlaneGeometry`) and the mesh arrays
-(:class:`poromech.meshing.MeshArrays`) consistent with it. The rules (docs/meshes.md):
+(:func:`poromech.mesh.generate.generate_mesh`): the plane geometry (boundary polygon with named
+edges,
+fracture polylines; :class:`poromech.geometry.plane.PlaneGeometry`) and the mesh arrays
+(:class:`poromech.mesh.generate.MeshArrays`) consistent with it. The rules (docs/meshes.md):
 
 * cells: 3-node triangles in the plane ``z = 0``, forming one conforming piece with a single
   boundary loop (no holes);
@@ -31,8 +32,8 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from poromech.geometry import PlaneGeometry
-from poromech.meshing import MeshArrays, gmsh_session, mesh_arrays
+from poromech.geometry.plane import PlaneGeometry
+from poromech.mesh.generate import MeshArrays, gmsh_session, mesh_arrays
 
 __all__ = [
     "COLLINEAR_TOL",
@@ -646,7 +647,7 @@ def mesh_file_arrays(spec, geometry: PlaneGeometry, refinement: int) -> MeshArra
     """The mesh arrays of a validated mesh-file scene (one rank).
 
     Args:
-        spec: The scene's ``geometry.mesh`` (:class:`poromech.scene.MeshFile`).
+        spec: The scene's ``geometry.mesh`` (:class:`poromech.scene.schema.MeshFile`).
         geometry: The plane geometry the scene was validated with.
         refinement: Uniform refinement level.
 

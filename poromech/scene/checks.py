@@ -1,0 +1,264 @@
+"""What a scene asks of each physics, checked before meshing (one-line ConfigErrors).
+
+Mechanics: material fields, boundary conditions that fix every displacement component, the
+contact law's data; flow: permeability, fracture fields, boundary conditions, probes; time
+stepping; PETSc option names; names that become file names.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+
+import numpy as np
+
+from poromech.errors import ConfigError
+from poromech.geometry.plane import PlaneGeometry, segment_meets_polygon
+from poromech.scene.builder import field_meta, format_value
+from poromech.scene.schema import Contact, Flow, FractureFlow, Material, Scene
+from poromech.scene.values import (
+    check_expression,
+    check_field,
+    check_permeability,
+    check_times,
+    edge_points,
+    fracture_points,
+    grid_points,
+)
+
+__all__ = ["check_boundary_name", "check_name", "check_scene"]
+
+log = logging.getLogger("poromech")
+
+
+#: Names that become file names (scene name → results/<name>, probe name → probe_<name>.csv).
+_FILE_NAME = re.compile(r"[^\W_][\w.-]*")
+
+
+def check_boundary_name(key: str, name: str, known: set[str]) -> None:
+    """Reject a boundary name that no domain edge has."""
+    if name not in known:
+        raise ConfigError(f"scene key '{key}' = {name!r} is not a boundary "
+                          f"(allowed: {', '.join(sorted(known))})")
+
+
+def _check_mechanics(scene: Scene, geo: PlaneGeometry) -> None:
+
+    for key in ("geometry", "mesh", "material"):
+        if getattr(scene, key) is None:
+            raise ConfigError(f"scene key '{key}' is required for physics 'mechanics'")
+    c = scene.contact
+    if c.slip_bound is not None and not c.slip_bound.is_uniform:
+        raise ConfigError(f"scene key 'contact.slip_bound' = {format_value(c.slip_bound.source)} "
+                          "is not "
+                          "allowed: the Tresca slip bound must not depend on x or y (a number, "
+                          "or an expression in t)")
+    if c.friction == "tresca" and c.slip_bound is None:
+        raise ConfigError(
+            "scene key 'contact.slip_bound' is required when contact.friction is tresca"
+        )
+    times = check_times(scene)
+    for name in ("young", "poisson"):
+        check_field(getattr(scene.material, name), f"material.{name}",
+                     field_meta(Material, name), geo, times)
+    known = set(geo.boundary_names)
+    fixed = [False, False]
+    for i, bc in enumerate(scene.boundary_conditions):
+        path = f"boundary_conditions.{i}"
+        check_boundary_name(f"{path}.boundary", bc.boundary, known)
+        if (bc.displacement is None) == (bc.traction is None):
+            raise ConfigError(f"scene key '{path}' needs exactly one of displacement, traction")
+        if bc.displacement is not None:
+            for k, comp in enumerate(bc.displacement):
+                fixed[k] |= comp is not None
+    if not all(fixed):
+        comp = "xy"[fixed.index(False)]
+        raise ConfigError(
+            f"scene key 'boundary_conditions': no displacement {comp} is imposed anywhere "
+            "(rigid body motion); add a displacement condition"
+        )
+    _check_mechanics_data(scene, geo, times)
+
+
+def _check_mechanics_data(scene: Scene, geo: PlaneGeometry, times) -> None:
+    """Check the mechanical data where the solver will evaluate them (before meshing).
+
+    Body force on the domain grid, boundary data along their edges (vertices included), fracture
+    pressure and slip bound along the fractures.
+    """
+    grid = grid_points(geo)
+    for k, e in enumerate(scene.material.body_force):
+        check_expression(e, grid, f"material.body_force.{k}", None, times)
+    for i, bc in enumerate(scene.boundary_conditions):
+        points = edge_points(geo, bc.boundary)
+        for kind in ("displacement", "traction"):
+            for k, e in enumerate(getattr(bc, kind) or ()):
+                check_expression(e, points, f"boundary_conditions.{i}.{kind}.{k}", None, times)
+    points = fracture_points(geo)
+    check_expression(scene.fracture_pressure, points, "fracture_pressure", None, times)
+    check_expression(scene.contact.slip_bound, points, "contact.slip_bound",
+                field_meta(Contact, "slip_bound"), times)
+
+
+def _check_flow(scene: Scene, geo: PlaneGeometry) -> None:
+    """Validate a flow scene (physics ``flow``): every failure is a one-line ConfigError."""
+    flow = scene.flow
+    if flow is None:
+        raise ConfigError("scene key 'flow' is required for physics 'flow'")
+    if scene.mesh is None:
+        raise ConfigError("scene key 'mesh' is required for physics 'flow'")
+    times = check_times(scene)
+    _check_flow_permeability(flow.permeability, geo, times)
+    check_field(flow.source, "flow.source", field_meta(Flow, "source"), geo, times)
+    if scene.time is not None:  # the initial state of a transient run
+        check_field(flow.initial_pressure, "flow.initial_pressure",
+                     field_meta(Flow, "initial_pressure"), geo, [0.0])
+    for name, override in _FRACTURE_DEFAULTS.items():
+        kept = {ff.fracture for ff in flow.fractures if getattr(ff, override, None) is not None}
+        which = [k for k, n in enumerate(geo.fracture_names) if n not in kept]
+        check_expression(getattr(flow, name), fracture_points(geo, which), f"flow.{name}",
+                    field_meta(Flow, name), times)
+    if flow.fracture_permeability is not None and flow.fracture_conductivity is not None:
+        raise ConfigError("scene key 'flow': give fracture_permeability or fracture_conductivity, "
+                          "not both")
+    seen: set[str] = set()
+    for i, ff in enumerate(flow.fractures):
+        path = f"flow.fractures.{i}"
+        if ff.fracture not in geo.fracture_names or ff.fracture in seen:
+            what = "repeats" if ff.fracture in seen else "is not a fracture"
+            raise ConfigError(f"scene key '{path}.fracture' = {ff.fracture!r} {what} "
+                              f"(allowed: {', '.join(geo.fracture_names)})")
+        seen.add(ff.fracture)
+        if ff.permeability is not None and ff.conductivity is not None:
+            raise ConfigError(f"scene key '{path}': give permeability or conductivity, not both")
+        points = fracture_points(geo, [geo.fracture_names.index(ff.fracture)])
+        for name in ("aperture", "permeability", "normal_permeability", "conductivity"):
+            check_expression(getattr(ff, name), points, f"{path}.{name}",
+                        field_meta(FractureFlow, name), times)
+    _check_flow_boundaries(scene, geo)
+    _check_probes(scene, geo)
+
+
+#: Fracture fields of ``flow`` and the ``flow.fractures`` entry overriding each on one fracture.
+_FRACTURE_DEFAULTS = {
+    "aperture": "aperture",
+    "fracture_permeability": "permeability",
+    "fracture_normal_permeability": "normal_permeability",
+    "fracture_conductivity": "conductivity",
+    "fracture_source": "",
+}
+
+
+def _check_flow_permeability(perm, geo: PlaneGeometry, times) -> None:
+    """Permeability: 1, 2 or 3 components forming an SPD tensor everywhere."""
+    allowed = "[k], [k_xx, k_yy] or [k_xx, k_xy, k_yy]"
+    if len(perm) not in (1, 2, 3):
+        raise ConfigError(f"scene key 'flow.permeability' has {len(perm)} entries "
+                          f"(allowed: {allowed})")
+    check_permeability(perm, grid_points(geo), times)
+
+
+def _check_flow_boundaries(scene: Scene, geo: PlaneGeometry) -> None:
+    """Boundary names, one of pressure/flux each, and a pressure condition when needed."""
+    flow = scene.flow
+    known = set(geo.boundary_names)
+    used: set[str] = set()
+    for i, bc in enumerate(flow.boundary_conditions):
+        path = f"flow.boundary_conditions.{i}"
+        check_boundary_name(f"{path}.boundary", bc.boundary, known)
+        if bc.boundary in used:
+            raise ConfigError(f"scene key '{path}.boundary' = {bc.boundary!r} already has a "
+                              "flow condition (one per boundary)")
+        used.add(bc.boundary)
+        if (bc.pressure is None) == (bc.flux is None):
+            raise ConfigError(f"scene key '{path}' needs exactly one of pressure, flux")
+        points, times = edge_points(geo, bc.boundary), check_times(scene)
+        for kind in ("pressure", "flux"):
+            check_expression(getattr(bc, kind), points, f"{path}.{kind}", None, times)
+    transient_storage = scene.time is not None and flow.biot_modulus is not None
+    if not transient_storage and all(bc.pressure is None for bc in flow.boundary_conditions):
+        raise ConfigError(
+            "scene key 'flow.boundary_conditions' has no pressure condition: the pressure is not "
+            "unique without one (allowed: add a pressure condition, or time with biot_modulus)"
+        )
+
+
+def _check_petsc_keys(scene: Scene) -> None:
+    """Scene PETSc options are given without the dash and without their solver's prefix."""
+    tables = {"solver.petsc": ("mech_", scene.solver.petsc),
+              "coupling.petsc": ("coupling_", scene.coupling.petsc)}
+    if scene.flow is not None:
+        tables["flow.petsc"] = ("flow_", scene.flow.petsc)
+    for key, (prefix, options) in tables.items():
+        for name in options:
+            if name.startswith(("-", "mech_", "flow_", "coupling_")):
+                raise ConfigError(f"scene key '{key}.{name}' is not allowed: give the option "
+                                  f"without '-' and without the {prefix} prefix (e.g. ksp_rtol)")
+
+
+def check_name(key: str, name: str) -> None:
+    """Refuse a name that becomes part of a file name unless it is a plain name."""
+    if not _FILE_NAME.fullmatch(name):
+        raise ConfigError(f"scene key '{key}' = {name!r} is not allowed: use letters, digits, "
+                          "'_', '-' or '.' (starting with a letter or digit); it names files")
+
+
+def _check_probes(scene: Scene, geo: PlaneGeometry) -> None:
+    """Probe names are unique and usable in file names; lines have a length.
+
+    A line entirely outside the domain is only warned about (its file will have no values).
+    """
+    names: set[str] = set()
+    for i, probe in enumerate(scene.probes):
+        path = f"probes.{i}"
+        check_name(f"{path}.name", probe.name)
+        if probe.name in names:
+            raise ConfigError(f"scene key '{path}.name' = {probe.name!r} repeats")
+        names.add(probe.name)
+        if np.allclose(probe.start, probe.end, rtol=0.0, atol=0.0):
+            raise ConfigError(f"scene key '{path}.end' = {list(probe.end)} equals start: "
+                              "a probe line needs two distinct points")
+        if not segment_meets_polygon(np.array(probe.start), np.array(probe.end), geo.boundary):
+            log.warning("probe '%s' (scene key '%s') lies entirely outside the domain: "
+                        "probe_%s.csv will have no values", probe.name, path, probe.name)
+
+
+def _check_time(scene: Scene) -> None:
+    """Uniform steps (final and steps) or listed times, increasing and positive."""
+    spec = scene.time
+    if spec is None:
+        return
+    uniform = spec.final is not None or spec.steps is not None
+    if uniform == (spec.times is not None):
+        raise ConfigError("scene key 'time' needs either final and steps, or times")
+    if uniform and (spec.final is None or spec.steps is None):
+        missing = "final" if spec.final is None else "steps"
+        raise ConfigError(f"scene key 'time.{missing}' is required with uniform steps")
+    if spec.times is not None:
+        t = np.asarray(spec.times, dtype=float)
+        if len(t) == 0 or np.any(np.diff(t) <= 0):
+            raise ConfigError(f"scene key 'time.times' = {[float(v) for v in t]} is not allowed: "
+                              "must be a non-empty list of increasing times > 0")
+
+
+def _check_poromechanics(scene: Scene) -> None:
+    """What a coupled scene needs beyond a mechanics and a flow scene."""
+    if scene.fracture_pressure is not None:
+        raise ConfigError("scene key 'fracture_pressure' is not allowed for physics "
+                          "'poromechanics': the fracture pressure is computed by the flow")
+
+
+def check_scene(scene: Scene, geo: PlaneGeometry) -> None:
+    """Everything the scene's physics needs, checked before meshing.
+
+    Raises:
+        ConfigError: The first defect, in one line naming the key.
+    """
+    _check_petsc_keys(scene)
+    _check_time(scene)
+    if scene.physics in ("mechanics", "poromechanics"):
+        _check_mechanics(scene, geo)
+    if scene.physics in ("flow", "poromechanics"):
+        _check_flow(scene, geo)
+    if scene.physics == "poromechanics":
+        _check_poromechanics(scene)

@@ -1,0 +1,164 @@
+"""Expressions checked at sample points before meshing: finite and within their field's range.
+
+A field is sampled on a grid of the domain, boundary data along their edges and fracture data
+along the fractures, at the step times (thinned to :data:`MAX_CHECK_TIMES`). After meshing,
+:mod:`poromech.scene.fields` checks them again where the solvers evaluate them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+
+from poromech.errors import ConfigError
+from poromech.geometry.plane import PlaneGeometry
+from poromech.scene.builder import RANGE_RULES, format_value
+from poromech.scene.expressions import Expression
+from poromech.scene.schema import Scene, step_times
+
+__all__ = [
+    "check_expression",
+    "check_field",
+    "check_permeability",
+    "check_times",
+    "check_values",
+    "edge_points",
+    "fracture_points",
+    "grid_points",
+]
+
+
+#: Before meshing, fields are checked on this many grid points per axis inside the domain, and
+#: boundary and fracture data at this many points per domain edge and fracture segment.
+FIELD_GRID = 201
+
+
+LINE_SAMPLES = 1001
+
+
+#: Most time points at which a time-dependent expression is checked before meshing (evenly
+#: chosen among the step times); after meshing every step time is checked.
+MAX_CHECK_TIMES = 200
+
+
+def inside(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
+    """Mask of the points strictly inside a polygon (crossing number; vectorized)."""
+    x, y = points[:, 0], points[:, 1]
+    inside = np.zeros(len(points), dtype=bool)
+    for a, b in zip(polygon, np.roll(polygon, -1, axis=0), strict=True):
+        crosses = (a[1] > y) != (b[1] > y)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xc = a[0] + (y - a[1]) * (b[0] - a[0]) / (b[1] - a[1])
+        inside ^= crosses & (x < xc)
+    return inside
+
+
+def grid_points(geo: PlaneGeometry, n: int = FIELD_GRID) -> np.ndarray:
+    """Cell-centred grid points of the bounding box that lie inside the domain, ``(m, 2)``."""
+    lo, hi = geo.boundary.min(axis=0), geo.boundary.max(axis=0)
+    s = (np.arange(n) + 0.5) / n
+    gx, gy = np.meshgrid(lo[0] + s * (hi[0] - lo[0]), lo[1] + s * (hi[1] - lo[1]))
+    points = np.column_stack([gx.ravel(), gy.ravel()])
+    return points[inside(points, geo.boundary)]
+
+
+def edge_points(geo: PlaneGeometry, name: str, n: int = LINE_SAMPLES) -> np.ndarray:
+    """Points along the domain edges called ``name``, their end vertices included."""
+    poly = geo.boundary
+    s = np.linspace(0.0, 1.0, n)[:, None]
+    return np.concatenate([poly[e] + s * (poly[(e + 1) % len(poly)] - poly[e])
+                           for e, edge in enumerate(geo.boundary_names) if edge == name])
+
+
+def fracture_points(geo: PlaneGeometry, which=None, n: int = LINE_SAMPLES) -> np.ndarray:
+    """Points inside the segments of fractures ``which`` (default all): face midpoints lie there.
+
+    Segment end points are excluded (no face has its midpoint there).
+    """
+    s = ((np.arange(n) + 0.5) / n)[:, None]
+    parts = [p[i] + s * (p[i + 1] - p[i]) for k, p in enumerate(geo.fractures)
+             if which is None or k in which for i in range(len(p) - 1)]
+    return np.concatenate(parts) if parts else np.empty((0, 2))
+
+
+def check_times(scene: Scene) -> list[float]:
+    """Times at which expressions are checked before meshing: the step times (thinned)."""
+    times = step_times(scene)
+    if len(times) > MAX_CHECK_TIMES:
+        keep = np.unique(np.linspace(0, len(times) - 1, MAX_CHECK_TIMES).round().astype(int))
+        times = [times[i] for i in keep]
+    return times
+
+
+def check_values(values: np.ndarray, points: np.ndarray, path: str, expr: Expression,
+                 meta: Mapping | None = None, t: float | None = None, what: str = "") -> None:
+    """Refuse the first point where an expression's values are not finite or out of range.
+
+    Args:
+        values: The values at ``points``.
+        points: ``(n, 2)`` evaluation points (m).
+        path: Scene key of the expression.
+        expr: The expression (for its text).
+        meta: Field metadata with the checks (``gt``, ``min``, ...).
+        t: The time of the values, when it matters (s).
+        what: What the points are (e.g. "a cell centre"), for the message.
+
+    Raises:
+        ConfigError: One line with the key, the expression, the value and the point.
+    """
+    values = np.broadcast_to(np.asarray(values, dtype=np.float64), (len(points),))
+    bad, rule = ~np.isfinite(values), None
+    for name, (ok, text) in RANGE_RULES.items():
+        if bad.any():
+            break
+        if meta and name in meta:
+            bad, rule = ~ok(values, meta[name]), text.format(meta[name])
+    if not bad.any():
+        return
+    i = int(np.flatnonzero(bad)[0])
+    at = f"x={points[i, 0]:g}, y={points[i, 1]:g}" + ("" if t is None else f", t={t:g}")
+    at += f" ({what})" if what else ""
+    head = f"scene key '{path}' = {format_value(expr.source)} is {float(values[i]):g} at {at}"
+    if rule is None:
+        raise ConfigError(f"{head}: must be finite")
+    raise ConfigError(f"{head}, not allowed: must be {rule}")
+
+
+def check_expression(expr: Expression | None, points: np.ndarray, path: str,
+                     meta: Mapping | None, times, what: str = "") -> None:
+    """Check an expression at points and times (one point if uniform, one time if static).
+
+    Raises:
+        ConfigError: See :func:`check_values`.
+    """
+    if expr is None or not len(points):
+        return
+    pts = points[:1] if expr.is_uniform else points
+    for t in (times if expr.depends_on_time else times[:1]):
+        values = expr(pts[:, 0], pts[:, 1], t)
+        check_values(values, pts, path, expr, meta, t if expr.depends_on_time else None, what)
+
+
+def check_field(expr: Expression | None, path: str, meta: Mapping, geo, times) -> None:
+    """Check a space/time-dependent field on a grid of points inside the domain."""
+    check_expression(expr, grid_points(geo), path, meta, times)
+
+
+def check_permeability(perm, points: np.ndarray, times, what: str = "") -> None:
+    """Refuse the first point where the permeability tensor is not finite and SPD."""
+    x, y = points[:, 0], points[:, 1]
+    steps = times if any(e.depends_on_time for e in perm) else times[:1]
+    for t in steps:
+        k = [np.broadcast_to(e(x, y, t), x.shape) for e in perm]
+        kxx, kyy = k[0], k[-1]
+        det = kxx * kyy - (k[1] ** 2 if len(k) == 3 else 0.0)
+        bad = ~(np.isfinite(det) & (kxx > 0) & (kyy > 0) & (det > 0))
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            value = [float(c[i]) for c in k]
+            where = f" ({what})" if what else ""
+            raise ConfigError(
+                f"scene key 'flow.permeability' = {value} at x={x[i]:g}, y={y[i]:g}{where} is "
+                "not allowed: must be positive definite (k_xx > 0, k_yy > 0, k_xx k_yy > k_xy²)"
+            )

@@ -1,0 +1,1 @@
+"""Known answers for tests and benchmarks: jump errors, manufactured and 1D flow solutions."""

@@ -1,0 +1,249 @@
+"""Outputs of the shipped scenes, run and compared with those of another version of poromech.
+
+A redesign must not change a number. This script runs a fixed list of cases (every shipped scene,
+and the six-fracture scenes with every formulation and degree) into one directory per case, and
+compares two such collections:
+
+* ``summary.json``: every integer, string and boolean (iteration, ``g`` and factorization counts,
+  reasons, states, sizes) identical; timings, versions and paths are left out;
+* every ``*.csv`` (``fractures.csv``, probes, ...): the same rows and columns, every number equal
+  to the precision it is printed with (a rounding flip of the last printed digit allowed);
+* every dataset of every HDF5 file of the XDMF series: equal to ``--rtol`` (1e-12) relative to
+  the largest value of the dataset.
+
+Usage (the reference made with the other version's environment, e.g. a clone at that commit)::
+
+    python scripts/regression_outputs.py run OUT [--only NAME ...] [--ranks 2]
+    python scripts/regression_outputs.py compare REF NEW [--markdown docs/regression.md]
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+FORMULATIONS = ("mixed", "stabilized_mixed", "mean_nitsche", "nitsche")
+SHIPPED = ("flemisch_case1", "flemisch_case2", "flemisch_case2_csv", "flow_barrier_conduit",
+           "flow_barrier_conduit_cut", "flow_six_fractures", "inclined_crack_frictionless",
+           "inclined_crack_slip", "inclined_crack_stick", "injection", "six_fractures",
+           "six_fractures_mechanics", "six_fractures_msh", "sneddon", "terzaghi")
+
+
+def cases() -> dict[str, list[str]]:
+    """Case name -> ``poromech run`` arguments."""
+    out = {name: [name] for name in SHIPPED}
+    for scene in ("six_fractures", "six_fractures_mechanics"):
+        for f in FORMULATIONS:
+            for p in (1, 2):
+                key = f"{scene}-{f}-P{p}"
+                if scene == "six_fractures" and f == "nitsche" and p == 2:
+                    continue  # the shipped default
+                out[key] = [scene, "--set", f"contact.formulation={f}", "--set", f"degree={p}"]
+    for theta in (0, 1):
+        out[f"six_fractures_mechanics-nitsche-theta{theta}"] = [
+            "six_fractures_mechanics", "--set", f"contact.theta={theta}"]
+    out["inclined_crack_slip-tresca"] = ["inclined_crack_slip", "--set", "contact.friction=tresca",
+                                         "--set", "contact.slip_bound=1e6"]
+    return out
+
+
+def run(out: Path, only: list[str] | None, ranks: int) -> None:
+    """Run the cases into ``out/<case>`` with the python running this script."""
+    out.mkdir(parents=True, exist_ok=True)
+    timings = {}
+    for name, args in cases().items():
+        if only and name not in only:
+            continue
+        cmd = [sys.executable, "-m", "poromech", "run", *args, "-o", str(out / name),
+               "--overwrite", "-q"]
+        if ranks > 1:
+            cmd = [str(Path(sys.executable).parent / "mpirun"), "-n", str(ranks), *cmd]
+        t0 = time.perf_counter()
+        proc = subprocess.run(cmd, capture_output=True, text=True,
+                              env={**os.environ, "PYTHONHASHSEED": "0"})
+        timings[name] = round(time.perf_counter() - t0, 1)
+        print(f"{name}: exit {proc.returncode}, {timings[name]} s", flush=True)
+        if proc.returncode != 0:
+            print(proc.stderr[-2000:], flush=True)
+
+
+#: summary.json keys whose values change from run to run or from version to version.
+VOLATILE = {"wall_time", "poromech_version", "time_assembly", "time_linear", "mechanics_seconds",
+            "darcy_seconds", "solve_seconds", "seconds", "setup_seconds", "factor_seconds",
+            "schur_seconds", "face_seconds", "output", "path"}
+
+
+def _walk(a, b, path: str, diffs: list[str]) -> None:
+    """Exact comparison of the discrete entries of two JSON values."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        for k in sorted(set(a) | set(b)):
+            if k in VOLATILE or "seconds" in k or k.startswith("time_"):
+                continue
+            if k not in a or k not in b:
+                diffs.append(f"{path}/{k}: only in {'new' if k in b else 'reference'}")
+                continue
+            _walk(a[k], b[k], f"{path}/{k}", diffs)
+    elif isinstance(a, list) and isinstance(b, list):
+        if len(a) != len(b):
+            diffs.append(f"{path}: length {len(a)} != {len(b)}")
+            return
+        for i, (x, y) in enumerate(zip(a, b, strict=True)):
+            _walk(x, y, f"{path}[{i}]", diffs)
+    elif isinstance(a, bool | int | str) or a is None:
+        if a != b:
+            diffs.append(f"{path}: {a!r} != {b!r}")
+
+
+def compare_summary(ref: Path, new: Path) -> list[str]:
+    diffs: list[str] = []
+    _walk(json.loads(ref.read_text()), json.loads(new.read_text()), "", diffs)
+    return diffs
+
+
+def _digits(text: str) -> float:
+    """Half a unit in the last printed digit of a number written in ``text``."""
+    mant = text.lower().split("e")[0].lstrip("+-")
+    decimals = len(mant.split(".")[1]) if "." in mant else 0
+    exp = int(text.lower().split("e")[1]) if "e" in text.lower() else 0
+    return 0.5 * 10.0 ** (exp - decimals)
+
+
+def compare_csv(ref: Path, new: Path) -> tuple[list[str], float]:
+    """Differences beyond the printed precision, and the largest difference in printed units."""
+    with open(ref) as fa, open(new) as fb:
+        ra, rb = list(csv.reader(fa)), list(csv.reader(fb))
+    if len(ra) != len(rb):
+        return [f"{new.name}: {len(ra)} rows != {len(rb)}"], math.inf
+    diffs, worst = [], 0.0
+    for i, (x, y) in enumerate(zip(ra, rb, strict=True)):
+        if len(x) != len(y):
+            diffs.append(f"{new.name} row {i}: {len(x)} columns != {len(y)}")
+            continue
+        for a, b in zip(x, y, strict=True):
+            if a == b:
+                continue
+            try:
+                fa_, fb_ = float(a), float(b)
+            except ValueError:
+                diffs.append(f"{new.name} row {i}: {a!r} != {b!r}")
+                continue
+            units = abs(fa_ - fb_) / (2 * max(_digits(a), _digits(b)))
+            worst = max(worst, units)
+            if units > 1.0 + 1e-9:
+                diffs.append(f"{new.name} row {i}: {a} != {b}")
+    return diffs, worst
+
+
+def compare_h5(ref: Path, new: Path, rtol: float) -> tuple[list[str], float]:
+    """Datasets equal to ``rtol`` relative to their largest value; and the largest such error."""
+    diffs, worst = [], 0.0
+    with h5py.File(ref) as fa, h5py.File(new) as fb:
+        names: list[str] = []
+        fa.visititems(lambda n, o: names.append(n) if isinstance(o, h5py.Dataset) else None)
+        for n in names:
+            if n not in fb:
+                diffs.append(f"{new.name}:{n} missing")
+                continue
+            a, b = np.asarray(fa[n]), np.asarray(fb[n])
+            if a.shape != b.shape:
+                diffs.append(f"{new.name}:{n} shape {a.shape} != {b.shape}")
+                continue
+            scale = float(np.max(np.abs(a))) if a.size else 0.0
+            err = float(np.max(np.abs(a - b))) / scale if scale > 0 else float(np.abs(b).max(
+                initial=0.0))
+            worst = max(worst, err)
+            if err > rtol:
+                diffs.append(f"{new.name}:{n} differs by {err:.2e} relative")
+    return diffs, worst
+
+
+def compare(ref: Path, new: Path, rtol: float) -> list[dict]:
+    """One row per case of ``ref``."""
+    rows = []
+    for case in sorted(p.name for p in ref.iterdir() if p.is_dir()):
+        a, b = ref / case, new / case
+        row = {"case": case, "summary": "", "csv": 0.0, "h5": 0.0, "diffs": []}
+        if not (b / "summary.json").exists():
+            row["diffs"].append("not run")
+            rows.append(row)
+            continue
+        d = compare_summary(a / "summary.json", b / "summary.json")
+        row["summary"] = "identical" if not d else f"{len(d)} differences"
+        row["diffs"] += d
+        for f in sorted(a.rglob("*.csv")):
+            g = b / f.relative_to(a)
+            if not g.exists():
+                row["diffs"].append(f"{f.name} missing")
+                continue
+            d, w = compare_csv(f, g)
+            row["csv"] = max(row["csv"], w)
+            row["diffs"] += d
+        for f in sorted(a.rglob("*.h5")):
+            g = b / f.relative_to(a)
+            if not g.exists():
+                row["diffs"].append(f"{f.relative_to(a)} missing")
+                continue
+            d, w = compare_h5(f, g, rtol)
+            row["h5"] = max(row["h5"], w)
+            row["diffs"] += d
+        rows.append(row)
+    return rows
+
+
+def markdown(rows: list[dict], rtol: float, title: str) -> str:
+    lines = [f"# {title}", "",
+             f"`summary.json`: discrete entries (counts, reasons, states, sizes) compared exactly. "
+             f"CSV: every number to its printed precision (largest difference in units of the "
+             f"last printed digit). HDF5 (XDMF series): every dataset to {rtol:g} relative to its "
+             "largest value (largest relative difference shown).", "",
+             "| case | summary.json | CSV (last digits) | HDF5 (relative) | verdict |",
+             "|---|---|---|---|---|"]
+    for r in rows:
+        ok = "equal" if not r["diffs"] else f"**{len(r['diffs'])} differences**"
+        lines.append(f"| {r['case']} | {r['summary'] or '-'} | {r['csv']:.2g} | {r['h5']:.1e} "
+                     f"| {ok} |")
+    bad = [r for r in rows if r["diffs"]]
+    if bad:
+        lines += ["", "## Differences", ""]
+        for r in bad:
+            lines += [f"* {r['case']}: " + "; ".join(r["diffs"][:5])]
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    r = sub.add_parser("run")
+    r.add_argument("out", type=Path)
+    r.add_argument("--only", nargs="*")
+    r.add_argument("--ranks", type=int, default=1)
+    c = sub.add_parser("compare")
+    c.add_argument("ref", type=Path)
+    c.add_argument("new", type=Path)
+    c.add_argument("--rtol", type=float, default=1e-12)
+    c.add_argument("--markdown", type=Path)
+    c.add_argument("--title", default="Outputs against the reference version")
+    args = ap.parse_args()
+    if args.cmd == "run":
+        run(args.out, args.only, args.ranks)
+        return
+    rows = compare(args.ref, args.new, args.rtol)
+    text = markdown(rows, args.rtol, args.title)
+    if args.markdown:
+        args.markdown.write_text(text)
+    print(text)
+    sys.exit(1 if any(r["diffs"] for r in rows) else 0)
+
+
+if __name__ == "__main__":
+    main()
