@@ -82,6 +82,7 @@ class ContactParameters:
         average_scale: Weight (Pa/m) of the linear equations defining face averages of jumps.
         quadrature_degree: Quadrature degree of every fracture integral (None: UFL's estimate);
             see :func:`quadrature_degree`.
+        dim: Space dimension ``d`` (tangential quantities have ``d - 1`` components).
     """
 
     formulation: str
@@ -93,6 +94,7 @@ class ContactParameters:
     slip_bound: ufl.core.expr.Expr | None = None
     average_scale: ufl.core.expr.Expr | float = 1.0
     quadrature_degree: int | None = None
+    dim: int = 2
 
     @property
     def tangential(self) -> bool:
@@ -103,6 +105,17 @@ class ContactParameters:
     def active(self) -> bool:
         """Whether the contact conditions are imposed at all."""
         return self.formulation != "none"
+
+    @property
+    def piecewise_affine(self) -> bool:
+        """Whether the residual is piecewise affine in the unknowns.
+
+        Its Jacobian is then a function of the contact branches only (the active set), which
+        lets Newton keep a Jacobian while the active set is unchanged. True in 2D, where the
+        friction projection is a clip to ``[-S, S]``, and without friction; false for friction
+        in 3D, where the projection on the disc of radius ``S`` depends on the slip direction.
+        """
+        return self.dim == 2 or not self.tangential or not self.active
 
 
 def quadrature_degree(degree: int) -> int:

@@ -38,6 +38,7 @@ __all__ = [
     "PetscOptionError",
     "PrefixedOptions",
     "check_petsc_options",
+    "reason_name",
     "report_unused_options",
     "scene_options",
     "unused_options",
@@ -225,3 +226,12 @@ def report_unused_options(comm: MPI.Comm, names: Mapping[str, str] | None = None
         log.warning("PETSc option(s) %s were not used (misspelled, or for a solver this scene "
                     "does not build)", listed)
     return unused
+
+
+_SNES_REASONS = {v: k for k, v in vars(PETSc.SNES.ConvergedReason).items()
+                 if not k.startswith("_")}
+
+
+def reason_name(reason: int) -> str:
+    """The name of a SNES converged reason (``CONVERGED_FNORM_RELATIVE``), or its number."""
+    return _SNES_REASONS.get(reason, str(reason))

@@ -1,14 +1,24 @@
-"""Run a scene: mesh → models → (coupling) → time loop → output. Dispatches on ``physics``."""
+"""Run a scene: the one lifecycle, scene → mesh → physics → time loop → outputs, for every physics.
+
+:class:`Run` is used by the command line (``poromech run``), the Python API
+(:func:`run_scene`), the tests and the benchmark scripts alike::
+
+    with Run(scene, outdir) as run:     # outdir None: nothing is written (studies, tests)
+        summary = run.execute()
+        u = run.physics.model.u         # the solved state stays inspectable until the with ends
+
+The physics of a scene is looked up by name in :data:`PHYSICS` (its class implements
+:class:`poromech.physics.Physics`); the lifecycle itself does not know which physics it runs.
+"""
 
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from collections.abc import Callable
 from pathlib import Path
 
 import dolfinx_solver  # noqa: F401
 
-import numpy as np
 import yaml
 from mpi4py import MPI
 
@@ -16,52 +26,61 @@ import poromech
 from poromech.errors import SolverError
 from poromech.io.checkpoint import load_checkpoint, save_checkpoint
 from poromech.io.output import write_summary
-from poromech.mechanics.physics import MechanicsSimulation, formulation_options
 from poromech.mesh.fractured import FracturedMesh, create_fractured_mesh
 from poromech.mesh.generate import generate_mesh
 from poromech.parallel import agree
+from poromech.physics import Physics
 from poromech.scene.fields import validate_fields
 from poromech.scene.geometry import mesh_sizes, plane_geometry
-from poromech.scene.schema import Scene, step_times
+from poromech.scene.schema import Scene
 from poromech.stepping import Interrupted, run_steps, stop_signals
 from poromech.timing import Timer
 
-__all__ = [
-    "MechanicsSimulation",
-    "RunContext",
-    "SCENE_FILE",
-    "build_mesh",
-    "formulation_options",
-    "make_simulation",
-    "mesh_sizes",
-    "run_scene",
-    "time_points",
-]
+__all__ = ["PHYSICS", "SCENE_FILE", "Run", "build_mesh", "mesh_summary", "run_scene"]
 
 log = logging.getLogger("poromech")
 
 #: The validated scene (after overrides) is stored next to the outputs, for ``--restart``.
 SCENE_FILE = "poromech_scene.yaml"
 
+PhysicsFactory = Callable[[Scene, FracturedMesh, Timer], Physics]
 
-@dataclass
-class RunContext:
-    """What a physics driver needs: the scene, the mesh, where to write, and the bookkeeping."""
 
-    scene: Scene
-    fm: FracturedMesh
-    outdir: Path
-    timer: Timer
-    summary: dict = field(default_factory=dict)
+def _mechanics(scene: Scene, fm: FracturedMesh, timer: Timer) -> Physics:
+    from poromech.mechanics.physics import MechanicsPhysics
 
-    @property
-    def comm(self) -> MPI.Comm:
-        """The communicator of the run."""
-        return self.fm.comm
+    return MechanicsPhysics(scene, fm, timer)
+
+
+def _flow(scene: Scene, fm: FracturedMesh, timer: Timer) -> Physics:
+    from poromech.flow.physics import FlowPhysics
+
+    return FlowPhysics(scene, fm, timer)
+
+
+def _poromechanics(scene: Scene, fm: FracturedMesh, timer: Timer) -> Physics:
+    from poromech.coupling.poromechanics import Poromechanics
+
+    return Poromechanics(scene, fm, timer)
+
+
+#: The physics of each value of the scene key ``physics``. The classes are imported when a scene
+#: asks for them, so a flow-only run loads no mechanics and compiles no form.
+PHYSICS: dict[str, PhysicsFactory] = {
+    "mechanics": _mechanics,
+    "flow": _flow,
+    "poromechanics": _poromechanics,
+}
 
 
 def build_mesh(scene: Scene, comm: MPI.Comm, owner=None) -> FracturedMesh:
     """Generate or read (rank 0) and distribute the fractured mesh of a scene (collective).
+
+    Args:
+        scene: The scene.
+        comm: Communicator.
+        owner: Optional rank of every input cell (rank 0 only), to impose a partition (tests
+            that put a process boundary on a fracture).
 
     A failure of gmsh or of the mesh file on rank 0 is raised on every rank.
     """
@@ -81,146 +100,198 @@ def build_mesh(scene: Scene, comm: MPI.Comm, owner=None) -> FracturedMesh:
     return create_fractured_mesh(comm, geo, arrays, owner=owner)
 
 
-def time_points(scene: Scene) -> list[float]:
-    """Times of the solves: ``[0]`` for a static scene, else the step end times."""
-    return step_times(scene)
-
-
-def _mesh_summary(fm: FracturedMesh) -> dict:
-    msh = fm.msh
+def mesh_summary(fm: FracturedMesh) -> dict:
+    """Global sizes of a mesh, for the summary (collective-free)."""
+    top = fm.msh.topology
     return {
-        "cells": msh.topology.index_map(2).size_global,
-        "vertices": msh.topology.index_map(0).size_global,
+        "cells": top.index_map(top.dim).size_global,
+        "vertices": top.index_map(0).size_global,
         "fracture_faces": fm.num_fracture_faces,
     }
 
 
-def make_simulation(scene: Scene, fm: FracturedMesh, timer: Timer):
-    """The physics object of a scene (collective)."""
-    if scene.physics == "flow":
-        from poromech.flow.physics import FlowSimulation
-
-        return FlowSimulation(scene, fm, timer)
-    if scene.physics == "poromechanics":
-        from poromech.coupling.poromechanics import PoromechanicsSimulation
-
-        return PoromechanicsSimulation(scene, fm, timer)
-    return MechanicsSimulation(scene, fm, timer)
-
-
-def run_scene(scene: Scene, outdir: Path, comm: MPI.Comm = MPI.COMM_WORLD, *,
-              raw: dict | None = None, restart: bool = False) -> dict:
-    """Run a scene and write its outputs to ``outdir`` step by step (collective).
+class Run:
+    """One run of a scene, from its mesh to its outputs (collective).
 
     Args:
         scene: The validated scene.
-        outdir: Output directory (created if needed).
+        outdir: Output directory (created if needed); None writes nothing (no outputs, no
+            ``summary.json``, no checkpoints): the summary is only returned.
         comm: Communicator.
-        raw: The scene mapping it was built from; stored as ``scene.yaml`` for ``--restart``.
+        raw: The scene mapping it was built from; stored as ``poromech_scene.yaml`` for
+            ``--restart``.
         restart: Continue the run in ``outdir`` from its checkpoint.
+        mesh: A mesh already built from the scene (tests that impose a partition); by default
+            :func:`build_mesh`.
+        prepare: Called with the physics once it is built, before anything is solved (studies
+            and tests that change a solver setting the scene has no key for).
+
+    Attributes:
+        summary: The summary, filled as the run goes (also ``outdir/summary.json``).
+        records: One record per completed step (in the summary too).
+        physics: The physics, once built; it stays alive until :meth:`close`.
+        mesh: The fractured mesh, once built.
+    """
+
+    def __init__(self, scene: Scene, outdir: str | Path | None = None,
+                 comm: MPI.Comm = MPI.COMM_WORLD, *, raw: dict | None = None,
+                 restart: bool = False, mesh: FracturedMesh | None = None,
+                 prepare: Callable[[Physics], None] | None = None):
+        if restart and outdir is None:
+            raise ValueError("a restart continues the run of an output directory: give outdir")
+        self.scene, self.comm, self.raw, self.restart = scene, comm, raw, restart
+        self.outdir = None if outdir is None else Path(outdir)
+        self.mesh, self.prepare = mesh, prepare
+        self.physics: Physics | None = None
+        self.timer = Timer()
+        self.records: list[dict] = []
+        self.summary: dict = {
+            "scene": scene.name,
+            "physics": scene.physics,
+            "poromech_version": poromech.__version__,
+            "mpi_ranks": comm.size,
+            "status": "running",
+        }
+
+    def __enter__(self) -> Run:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Free the physics' PETSc objects (collective)."""
+        if self.physics is not None:
+            self.physics.close()
+            self.physics = None
+
+    def execute(self) -> dict:
+        """Mesh, physics, initial state (or checkpoint), the time steps and the summary.
+
+        Returns:
+            The summary (also in ``outdir/summary.json``, rewritten after every step, and
+            written with the failure status when a step fails).
+
+        Raises:
+            SolverError: A step did not converge (outputs of earlier steps are kept).
+            Interrupted: Stopped by SIGINT/SIGTERM at a step boundary.
+        """
+        self._prepare_outdir()
+        summary, timer = self.summary, self.timer
+        try:
+            if self.mesh is None:
+                with timer.phase("mesh"):
+                    self.mesh = build_mesh(self.scene, self.comm)
+            validate_fields(self.scene, self.mesh)  # every expression where it is evaluated
+            summary["mesh"] = mesh_summary(self.mesh)
+            log.info("mesh: %(cells)d cells, %(fracture_faces)d fracture faces", summary["mesh"])
+            self.physics = PHYSICS[self.scene.physics](self.scene, self.mesh, timer)
+            if self.prepare is not None:
+                self.prepare(self.physics)
+            summary.update(self.physics.describe())
+            self._steps()
+            summary["status"] = "converged"
+        except SolverError as err:
+            summary["status"] = f"failed: {err}"
+            raise
+        except Interrupted as err:
+            summary["status"] = f"interrupted: {err}"
+            raise
+        except BaseException as err:
+            summary["status"] = f"error: {type(err).__name__}: {err}"
+            raise
+        finally:
+            if self.physics is not None:
+                self.physics.finish(summary, self.records)
+            summary["wall_time"] = timer.report(self.comm)
+            self._write_summary()
+        return summary
+
+    # -- pieces of the lifecycle ----------------------------------------------------------------
+    def _prepare_outdir(self) -> None:
+        if self.outdir is None:
+            return
+        if self.comm.rank == 0:
+            self.outdir.mkdir(parents=True, exist_ok=True)
+            if self.raw is not None and not self.restart:
+                (self.outdir / SCENE_FILE).write_text(yaml.safe_dump(self.raw, sort_keys=False))
+        self.comm.barrier()
+
+    def _write_summary(self) -> None:
+        if self.outdir is not None:
+            write_summary(self.comm, self.outdir, self.summary)
+
+    def _steps(self) -> None:
+        """Initial state (or checkpoint), writers, then the time steps with their bookkeeping."""
+        scene, physics, summary = self.scene, self.physics, self.summary
+        section = physics.records_section
+        (summary.setdefault(section, {}) if section else summary)["solves"] = self.records
+        start, resume = 0, None
+        if self.restart:
+            start, resume = self._restore()
+        else:
+            initial = physics.initialize()
+            if initial is not None:
+                summary["initial"] = initial
+        if self.outdir is not None:
+            physics.open_output(self.outdir, resume_until=resume)
+        self._write_summary()
+        with stop_signals() as flag:
+            run_steps(physics, scene, self.comm, self.records, self._after_step, start=start,
+                      write_initial=not self.restart and scene.time is not None
+                      and physics.writes_initial_state, stop=flag)
+
+    def _restore(self) -> tuple[int, float]:
+        """The state of the last completed step from the checkpoint: (steps done, its time)."""
+        meta, arrays = load_checkpoint(self.comm, self.outdir)
+        self._check_restart(meta)
+        start, resume = meta["steps_done"], meta["time"]
+        self.physics.restore(arrays, resume)
+        self.records.extend(meta["records"])
+        if meta.get("initial"):
+            self.summary["initial"] = meta["initial"]
+        self.summary["restarted_from"] = {"step": start, "time": resume}
+        log.info("restart after step %d (t = %g s)", start, resume)
+        return start, resume
+
+    def _check_restart(self, meta: dict) -> None:
+        """The checkpoint must come from the same scene on the same mesh."""
+        summary = self.summary
+        if meta["mesh"] != summary["mesh"] or meta.get("dofs") != summary.get("dofs"):
+            raise ValueError(f"the checkpoint was written for another mesh ({meta['mesh']}, "
+                             f"{meta.get('dofs')} dofs) than this one ({summary['mesh']}, "
+                             f"{summary.get('dofs')} dofs)")
+
+    def _after_step(self, k: int, t: float) -> None:
+        """Summary and checkpoint after step ``k`` (ending at ``t``) was accepted."""
+        summary = self.summary
+        summary["completed_steps"] = k + 1
+        if self.outdir is None:
+            return
+        summary["wall_time"] = self.timer.report(self.comm)
+        self._write_summary()
+        if self.scene.time is not None and self.scene.output.checkpoint:
+            with self.timer.phase("checkpoint"):
+                meta = {"steps_done": k + 1, "time": t, "records": self.records,
+                        "initial": summary.get("initial"),
+                        "mesh": summary["mesh"], "dofs": summary.get("dofs"),
+                        "scene": self.scene.name}
+                save_checkpoint(self.comm, self.outdir, meta, self.physics.state())
+
+
+def run_scene(scene: Scene, outdir: str | Path | None = None, comm: MPI.Comm = MPI.COMM_WORLD,
+              *, raw: dict | None = None, restart: bool = False,
+              mesh: FracturedMesh | None = None) -> dict:
+    """Run a scene and write its outputs to ``outdir`` step by step (collective).
+
+    The arguments are those of :class:`Run`; the physics is freed before returning.
 
     Returns:
-        The summary (also in ``outdir/summary.json``, rewritten after every step, and written
-        with the failure status when a step fails).
+        The summary (also in ``outdir/summary.json``).
 
     Raises:
         SolverError: A step did not converge (outputs of earlier steps are kept).
         Interrupted: Stopped by SIGINT/SIGTERM at a step boundary.
     """
-    outdir = Path(outdir)
-    if comm.rank == 0:
-        outdir.mkdir(parents=True, exist_ok=True)
-        if raw is not None and not restart:
-            (outdir / SCENE_FILE).write_text(yaml.safe_dump(raw, sort_keys=False))
-    comm.barrier()
-    timer = Timer()
-    summary: dict = {
-        "scene": scene.name,
-        "physics": scene.physics,
-        "poromech_version": poromech.__version__,
-        "mpi_ranks": comm.size,
-        "status": "running",
-    }
-    sim = None
-    try:
-        with timer.phase("mesh"):
-            fm = build_mesh(scene, comm)
-        validate_fields(scene, fm)  # every expression where it is evaluated, every step time
-        summary["mesh"] = _mesh_summary(fm)
-        log.info("mesh: %(cells)d cells, %(fracture_faces)d fracture faces", summary["mesh"])
-        sim = make_simulation(scene, fm, timer)
-        summary.update(sim.describe())
-        _loop(sim, RunContext(scene, fm, outdir, timer, summary), restart)
-        summary["status"] = "converged"
-    except SolverError as err:
-        summary["status"] = f"failed: {err}"
-        raise
-    except Interrupted as err:
-        summary["status"] = f"interrupted: {err}"
-        raise
-    except BaseException as err:
-        summary["status"] = f"error: {type(err).__name__}: {err}"
-        raise
-    finally:
-        if sim is not None:
-            sim.finish(summary)
-            sim.close()
-        summary["wall_time"] = timer.report(comm)
-        write_summary(comm, outdir, summary)
-    return summary
-
-
-def _loop(sim, ctx: RunContext, restart: bool) -> None:
-    """Initial state (or checkpoint), writers, then the time steps with per-step bookkeeping."""
-    scene, comm, summary, outdir = ctx.scene, ctx.comm, ctx.summary, ctx.outdir
-    key = "flow" if scene.physics == "flow" else None
-    records: list[dict] = sim.records
-    (summary.setdefault("flow", {}) if key else summary)["solves"] = records
-    start, resume = 0, None
-    if restart:
-        meta, arrays = load_checkpoint(comm, outdir)
-        _check_restart(meta, summary)
-        start, resume = meta["steps_done"], meta["time"]
-        sim.restore(arrays, resume)
-        records.extend(meta["records"])
-        if meta.get("initial"):
-            summary["initial"] = meta["initial"]
-        summary["restarted_from"] = {"step": start, "time": resume}
-        log.info("restart after step %d (t = %g s)", start, resume)
-    else:
-        initial = sim.initialize()
-        if initial is not None:
-            summary["initial"] = initial
-    sim.open_output(outdir, resume_until=resume)
-    checkpoints = scene.time is not None and scene.output.checkpoint
-
-    def on_step(k: int, t: float) -> None:
-        summary["completed_steps"] = k + 1
-        summary["wall_time"] = ctx.timer.report(comm)
-        write_summary(comm, outdir, summary)
-        if checkpoints:
-            with ctx.timer.phase("checkpoint"):
-                meta = {"steps_done": k + 1, "time": t, "records": records,
-                        "initial": summary.get("initial"),
-                        "mesh": summary["mesh"], "dofs": summary.get("dofs"),
-                        "scene": scene.name}
-                save_checkpoint(comm, outdir, meta, sim.state())
-
-    write_summary(comm, outdir, summary)
-    with stop_signals() as flag:
-        run_steps(sim, scene, comm, records, on_step, start=start,
-                  write_initial=not restart and scene.time is not None
-                  and getattr(sim, "has_initial_output", False), stop=flag)
-
-
-def _check_restart(meta: dict, summary: dict) -> None:
-    """The checkpoint must come from the same scene on the same mesh."""
-    if meta["mesh"] != summary["mesh"] or meta.get("dofs") != summary.get("dofs"):
-        raise ValueError(f"the checkpoint was written for another mesh ({meta['mesh']}, "
-                         f"{meta.get('dofs')} dofs) than this one ({summary['mesh']}, "
-                         f"{summary.get('dofs')} dofs)")
-
-
-def final_time(scene: Scene) -> float:
-    """Time of the last step (0 for a static scene)."""
-    return float(np.max(step_times(scene)))
+    with Run(scene, outdir, comm, raw=raw, restart=restart, mesh=mesh) as run:
+        return run.execute()

@@ -1,8 +1,7 @@
 """The one time-stepping layer of poromech: steps, failed-step policy, output cadence, checkpoints.
 
-Mechanics-only, flow-only and coupled runs all go through :func:`run_steps`; the physics sits
-behind the small :class:`Physics` interface, so the data flow is scene → mesh → models →
-(coupling) → output.
+Every run goes through :func:`run_steps`, called by the lifecycle :class:`poromech.run.Run`; the
+physics sits behind :class:`poromech.physics.Physics`, and the loop does not know which it is.
 
 For every step ``tⁿ⁻¹ → tⁿ`` the loop
 
@@ -28,67 +27,17 @@ import logging
 import signal
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
-from typing import Protocol
+from dataclasses import replace
 
 from mpi4py import MPI
 
 from poromech.errors import SolverError
+from poromech.physics import Physics, StepResult
 from poromech.scene.schema import Scene, step_times
 
-__all__ = [
-    "Interrupted",
-    "Physics",
-    "StepResult",
-    "run_steps",
-    "stop_signals",
-]
+__all__ = ["Interrupted", "run_steps", "stop_signals"]
 
 log = logging.getLogger("poromech")
-
-
-@dataclass
-class StepResult:
-    """Outcome of one attempted solve (identical on every rank).
-
-    Attributes:
-        converged: Whether the solve converged.
-        record: JSON-ready details (iterations, residuals, counts, ...).
-        message: Why it failed (reason and residual history), for the error message.
-        reason: PETSc's converged reason of a failed solve.
-        history: Residual norms of a failed solve.
-    """
-
-    converged: bool
-    record: dict = field(default_factory=dict)
-    message: str = ""
-    reason: str = ""
-    history: list[float] = field(default_factory=list)
-
-
-class Physics(Protocol):
-    """What the time loop needs from a physics (every method collective)."""
-
-    #: Entries of a step record that add up over the attempts of a cut step (solver work).
-    counters: tuple[str, ...]
-
-    def initialize(self) -> dict | None:
-        """Set up the state at the initial time; a record of the solve, or None."""
-
-    def solve(self, t: float, dt: float | None) -> StepResult:
-        """Solve the step ending at ``t`` of length ``dt`` (None: a static solve)."""
-
-    def write(self, t: float) -> None:
-        """Write the outputs of the state just solved (or the initial state)."""
-
-    def accept(self, t: float) -> None:
-        """Make the solved state the reference state of the next step."""
-
-    def reject(self) -> None:
-        """Restore the last accepted state (before a retry with a smaller step)."""
-
-    def progress(self, step: int, nsteps: int, t: float, result: StepResult) -> str:
-        """One line describing a converged step."""
 
 
 class Interrupted(RuntimeError):

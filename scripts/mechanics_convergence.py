@@ -26,9 +26,8 @@ import dolfinx_solver  # noqa: F401
 import numpy as np
 from mpi4py import MPI
 
-from poromech.run import MechanicsSimulation, build_mesh
+from poromech.run import Run, build_mesh
 from poromech.scene.loading import load_scene
-from poromech.timing import Timer
 from poromech.verification.jumps import exact_jump, jump_errors
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -63,21 +62,22 @@ def run_case(name: str, formulation: str, theta: int, degree: int, level: int) -
     t0 = time.perf_counter()
     fm = build_mesh(scene, comm)
     t1 = time.perf_counter()
-    sim = MechanicsSimulation(scene, fm, Timer())
-    t2 = time.perf_counter()
-    records = sim.run()
+    with Run(scene, mesh=fm) as run:
+        summary = run.execute()
+        model = run.physics.model
     t3 = time.perf_counter()
-    err = jump_errors(sim.model.u, fm, exact_jump(scene))
+    records = summary["solves"]
+    t2 = t1 + summary["wall_time"]["setup"]  # physics set-up: forms, matrices, factorizations
+    err = jump_errors(model.u, fm, exact_jump(scene))
     row = {
         "scene": name, "formulation": formulation, "theta": theta, "degree": degree,
         "level": level, "cells": fm.msh.topology.index_map(2).size_global,
-        "fracture_faces": fm.num_fracture_faces, "dofs": sim.model.dof_count(),
+        "fracture_faces": fm.num_fracture_faces, "dofs": summary["dofs"],
         "newton_iterations": sum(r["iterations"] for r in records),
         "face_iterations": sum(r.get("face_iterations", 0) for r in records),
         **{k: err[k] for k in ("l2", "max", "l2_n", "l2_t")},
         "time_mesh": t1 - t0, "time_setup": t2 - t1, "time_solve": t3 - t2, "time_total": t3 - t0,
     }
-    sim.close()
     return row
 
 

@@ -24,11 +24,8 @@ import argparse
 import csv
 import dataclasses
 import datetime
-import json
 import shlex
-import shutil
 import sys
-import tempfile
 from pathlib import Path
 
 import dolfinx_solver  # noqa: F401
@@ -60,10 +57,11 @@ def quiet_output(scene_path: Path) -> list[str]:
             if k in names]
 
 
-def run_case(level: str, formulation: str, theta: int, degree: int, label: str) -> list[dict]:
-    """One scene run; one row per step (collective)."""
+def run_case(level: str, formulation: str, theta: int, degree: int, label: str,
+             predictor: bool = True) -> list[dict]:
+    """One scene run in memory; one row per step (collective)."""
     from poromech.errors import SolverError
-    from poromech.run import run_scene
+    from poromech.run import Run
     from poromech.scene.loading import load_scene
 
     comm = MPI.COMM_WORLD
@@ -73,19 +71,16 @@ def run_case(level: str, formulation: str, theta: int, degree: int, label: str) 
                                  f"degree={degree}", "solver.condensation=false"] \
         + quiet_output(SCENE)
     scene = load_scene(SCENE, overrides)
-    outdir = Path(tempfile.mkdtemp(prefix="poromech_scaling_")) if comm.rank == 0 else None
-    outdir = comm.bcast(outdir, root=0)
-    try:
-        run_scene(scene, outdir, comm)
-    except SolverError:
-        pass  # summary.json holds the failed solve too
-    finally:
-        comm.barrier()
-        summary = None
-        if comm.rank == 0:
-            summary = json.loads((outdir / "summary.json").read_text())
-            shutil.rmtree(outdir, ignore_errors=True)
-        summary = comm.bcast(summary, root=0)
+
+    def no_predictor(physics) -> None:
+        physics.predictor.extrapolate = False
+
+    with Run(scene, comm=comm, prepare=None if predictor else no_predictor) as run:
+        try:
+            run.execute()
+        except SolverError:
+            pass  # the summary holds the failed solve too
+        summary = run.summary
     rows = []
     for k, rec in enumerate(summary.get("solves", [])):
         rows.append({
@@ -245,16 +240,13 @@ def main() -> None:
         plot(rows, args.csv.with_suffix(".png"))
         return
     comm = MPI.COMM_WORLD
-    if args.no_predictor:
-        from poromech.mechanics.model import MechanicsModel
-
-        MechanicsModel.extrapolate = False
     rows = []
     for level in args.levels:
         for degree in args.degrees:
             for spec in args.formulations:
                 formulation, _, theta = spec.partition(":")
-                new = run_case(level, formulation, int(theta or -1), degree, args.label)
+                new = run_case(level, formulation, int(theta or -1), degree, args.label,
+                               predictor=not args.no_predictor)
                 rows += new
                 if comm.rank == 0 and new:
                     print(f"{args.label:12s} {level:5s} {variant(new[0]):22s} "

@@ -30,9 +30,8 @@ import numpy as np
 from mpi4py import MPI
 
 from poromech.errors import SolverError
-from poromech.run import MechanicsSimulation, build_mesh
+from poromech.run import Run, build_mesh
 from poromech.scene.loading import load_scene, scene_from_dict
-from poromech.timing import Timer
 from poromech.verification.jumps import exact_jump, jump_errors
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -132,29 +131,40 @@ def run(case: Case, formulation: str, theta: int, degree: int, line_search="cont
                         f"degree={degree}", f"solver.line_search={line_search}",
                         f"solver.condensation={str(condensation).lower()}"])
     fm = build_mesh(scene, comm)
-    t0 = time.perf_counter()
-    sim = MechanicsSimulation(scene, fm, Timer())
     row = {"case": case.name, "formulation": formulation, "theta": theta, "degree": degree,
            "line_search": line_search, "converged": True, "reason": "", "iterations": 0,
            "face_iterations": 0, "l2": float("nan"), "nan": False}
-    try:
-        sim.run()
-    except SolverError as err:
-        row["converged"] = False
-        row["reason"] = err.reason
-    except Exception as err:  # a linear solver error is a failure of the case, not of the study
-        row["converged"] = False
-        row["reason"] = f"{type(err).__name__}: {str(err).splitlines()[0][:60]}"
-    row["time"] = time.perf_counter() - t0
-    row["iterations"] = sum(r["iterations"] for r in sim.records)
-    row["face_iterations"] = sum(r.get("face_iterations", 0) for r in sim.records)
-    row["reason"] = row["reason"] or (sim.records[-1]["reason"] if sim.records else "")
-    u = sim.model.u.x.array
+    t0 = time.perf_counter()
+    with Run(scene, mesh=fm) as run:
+        try:
+            run.execute()
+        except SolverError as err:
+            row["converged"] = False
+            row["reason"] = err.reason
+        except Exception as err:  # a linear solver error is a failure of the case, not the study
+            row["converged"] = False
+            row["reason"] = f"{type(err).__name__}: {str(err).splitlines()[0][:60]}"
+        row["time"] = time.perf_counter() - t0
+        records = run.records
+        row["iterations"] = sum(r["iterations"] for r in records)
+        row["face_iterations"] = sum(r.get("face_iterations", 0) for r in records)
+        row["reason"] = row["reason"] or (records[-1]["reason"] if records else "")
+        if run.physics is None:  # failed while setting up
+            row["converged"] = False
+            return row
+        u = run.physics.model.u
+    row["nan"] = bool(comm.allreduce(not np.all(np.isfinite(u.x.array)), op=MPI.LOR))
+    if case.exact and row["converged"]:
+        err = jump_errors(u, fm, exact_jump(scene))
+        row["l2"] = err["l2"] if err["norm"] > 1e-12 else err["max"]
+    return row
+    model = run.physics.model
+    u = model.u.x.array
     row["nan"] = bool(comm.allreduce(not np.all(np.isfinite(u)), op=MPI.LOR))
     if case.exact and row["converged"]:
-        err = jump_errors(sim.model.u, fm, exact_jump(scene))
+        err = jump_errors(model.u, fm, exact_jump(scene))
         row["l2"] = err["l2"] if err["norm"] > 1e-12 else err["max"]
-    sim.close()
+    run.close()
     return row
 
 

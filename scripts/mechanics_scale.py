@@ -23,9 +23,8 @@ import dolfinx_solver  # noqa: F401
 
 from mpi4py import MPI
 
-from poromech.run import MechanicsSimulation, build_mesh
+from poromech.run import Run, build_mesh
 from poromech.scene.loading import load_scene
-from poromech.timing import Timer
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "docs" / "mechanics"
@@ -33,25 +32,26 @@ OUT = ROOT / "docs" / "mechanics"
 SCENE = ROOT / "configs" / "six_fractures_mechanics.yaml"
 
 
-def timed_run(scene, fm, extrapolate: bool = True) -> tuple[MechanicsSimulation, float,
-                                                             list[dict], float]:
-    """Set up and solve: the simulation, solve wall time, records and set-up wall time.
+def timed_run(scene, fm, extrapolate: bool = True) -> dict:
+    """Set up and solve in memory: records, sizes and the set-up and solve wall times.
 
     The set-up builds forms and matrices, and for the condensed ``mixed`` solve factorizes
-    twice.
+    twice (the ``setup`` phase of the run's timer); the solve time is the sum of the steps'.
 
     ``extrapolate=False`` turns the step predictor off: on a linear problem under a load linear
     in time it would give the second step exactly, without a solve.
     """
-    MPI.COMM_WORLD.barrier()
-    t0 = time.perf_counter()
-    sim = MechanicsSimulation(scene, fm, Timer())
-    sim.model.extrapolate = extrapolate
-    MPI.COMM_WORLD.barrier()
-    t1 = time.perf_counter()
-    records = sim.run()
-    MPI.COMM_WORLD.barrier()
-    return sim, time.perf_counter() - t1, records, t1 - t0
+    def configure(physics) -> None:
+        physics.predictor.extrapolate = extrapolate
+
+    with Run(scene, mesh=fm, prepare=configure) as run:
+        summary = run.execute()
+        condensed = run.physics.solver.condensed
+        records = summary["solves"]
+        return {"records": records, "dofs": summary["dofs"],
+                "condensed_factorizations": condensed.factorizations if condensed else 0,
+                "setup": summary["wall_time"]["setup"],
+                "solve": sum(r["wall_time"] for r in records)}
 
 
 def main() -> None:
@@ -69,10 +69,9 @@ def main() -> None:
     # every Newton iteration does (without the predictor, which would make it exact)
     elastic = load_scene(SCENE, [f"mesh.refinement={args.refinement}", "contact.formulation=none",
                                 "time={final: 500.0, steps: 2}", "solver.reuse_jacobian=false"])
-    sim, _, rec, _ = timed_run(elastic, fm, extrapolate=False)
-    t_first, t_elastic = rec[0]["wall_time"], rec[1]["wall_time"]
-    dofs_elastic = sim.model.dof_count()
-    sim.close()
+    ref = timed_run(elastic, fm, extrapolate=False)
+    t_first, t_elastic = ref["records"][0]["wall_time"], ref["records"][1]["wall_time"]
+    dofs_elastic = ref["dofs"]
     variants = [(f, stale, "false") for f, stale in itertools.product(("nitsche", "mixed"),
                                                                       ("true", "false"))]
     variants.append(("mixed", "true", "true"))
@@ -81,15 +80,14 @@ def main() -> None:
                                   f"contact.formulation={formulation}",
                                   f"solver.stale_factorization={stale}",
                                   f"solver.condensation={condensed}"])
-        sim, t_solve, records, t_setup = timed_run(scene, fm)
+        out = timed_run(scene, fm)
+        records, t_setup, t_solve = out["records"], out["setup"], out["solve"]
         its = sum(r["iterations"] for r in records)
-        facts = sum(r["factorizations"] for r in records)
-        if condensed == "true":
-            facts += sim.solver.condensed.factorizations
+        facts = sum(r["factorizations"] for r in records) + out["condensed_factorizations"]
         rows.append({
             "formulation": formulation, "condensed": condensed, "stale_factorization": stale,
             "ranks": comm.size,
-            "dofs": sim.model.dof_count(),
+            "dofs": out["dofs"],
             "cells": fm.msh.topology.index_map(2).size_global,
             "fracture_faces": fm.num_fracture_faces, "steps": len(records),
             "newton_iterations": its,
@@ -103,7 +101,6 @@ def main() -> None:
             "ratio": t_solve / its / t_elastic if its else float("nan"),
             "ratio_run": (t_setup + t_solve) / t_elastic,
         })
-        sim.close()
     if comm.rank != 0:
         return
     OUT.mkdir(parents=True, exist_ok=True)

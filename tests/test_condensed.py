@@ -1,29 +1,35 @@
 """The condensed solve of ``mixed`` (poromech/mechanics/condensed.py): the face problem is the
-assembled
-one, and the condensed solution is the regular Newton's."""
+assembled one, and the condensed solution is the regular Newton's."""
 
 import numpy as np
 import pytest
 from conftest import ROOT
 from mpi4py import MPI
-from petsc4py import PETSc
 
 import poromech.mechanics.condensed as condensed
-from poromech.run import MechanicsSimulation, build_mesh
+from poromech.mechanics.physics import MechanicsPhysics
+from poromech.run import Run, build_mesh
 from poromech.scene.loading import load_scene
 from poromech.timing import Timer
 
 comm = MPI.COMM_WORLD
 
 
-def simulation(name: str, *overrides: str) -> MechanicsSimulation:
-    scene = load_scene(ROOT / "configs" / f"{name}.yaml", ["contact.formulation=mixed",
-                                                           *overrides])
-    return MechanicsSimulation(scene, build_mesh(scene, comm), Timer())
+def mixed_scene(name: str, *overrides: str):
+    return load_scene(ROOT / "configs" / f"{name}.yaml", ["contact.formulation=mixed", *overrides])
 
 
-def unknowns(sim) -> list[np.ndarray]:
-    return [f.x.array.copy() for f in sim.model.unknowns]
+def physics(name: str, *overrides: str) -> MechanicsPhysics:
+    """The mechanics physics of a scene, set up and not solved (close it)."""
+    scene = mixed_scene(name, *overrides)
+    return MechanicsPhysics(scene, build_mesh(scene, comm), Timer())
+
+
+def solved(name: str, *overrides: str) -> tuple[list[dict], list[np.ndarray], dict]:
+    """Step records, final unknowns and summary of an in-memory run."""
+    with Run(mixed_scene(name, *overrides)) as run:
+        summary = run.execute()
+        return summary["solves"], [f.x.array.copy() for f in run.physics.model.unknowns], summary
 
 
 @pytest.mark.parametrize("friction", ["coulomb", "tresca", "frictionless"])
@@ -35,7 +41,7 @@ def test_face_residual_and_map_are_those_of_the_assembled_problem(friction):
     sets = ["contact.friction=" + friction, "time.steps=1"]
     if friction == "tresca":
         sets.append("contact.slip_bound=2.0e6")
-    sim = simulation("six_fractures_mechanics", *sets)
+    sim = physics("six_fractures_mechanics", *sets)
     c, s = sim.solver.condensed, sim.solver
     assert c is not None
     rng = np.random.default_rng(3)
@@ -43,7 +49,7 @@ def test_face_residual_and_map_are_those_of_the_assembled_problem(friction):
     x = s.x.duplicate()
     x.setRandom()
     x.scale(1e-4)
-    values = c._gather(x)
+    values = c.gather(x)
     if comm.rank == 0:  # realistic magnitudes: tractions ~ MPa, β a ~ tractions
         values[c.lam_pos] = rng.normal(0.0, 5e6, c.lam_pos.size)
         beta = np.empty(c.avg_pos.size)
@@ -51,12 +57,11 @@ def test_face_residual_and_map_are_those_of_the_assembled_problem(friction):
         if p.at is not None:
             beta[p.at] = p.beta_t
         values[c.avg_pos] = rng.normal(0.0, 5e6, c.avg_pos.size) / beta
-        c._seq.getArray()[:] = values
-    c.scatter.scatter(c._seq, x, PETSc.InsertMode.INSERT, PETSc.ScatterMode.REVERSE)
+    c.scatter_faces(values, x)
     f = s.b.duplicate()
-    s._residual(s.snes, x, f)
-    assembled = c._gather(f)
-    coefficient, bound = c._law()
+    s.snes.computeFunction(x, f)
+    assembled = c.gather(f)
+    coefficient, bound = c.law()
     if comm.rank == 0:
         lam, a = values[c.lam_pos], values[c.avg_pos]
         R, J = p.residual(lam, a, coefficient, bound, jacobian=True)
@@ -74,11 +79,7 @@ def test_face_residual_and_map_are_those_of_the_assembled_problem(friction):
     # G: the averages' response to a change of λ, J₀ y = (0, |σ| δλ, 0)
     step = rng.normal(0.0, 1e6, p.ln.size * (1 if p.lt is None else 2)) if comm.rank == 0 \
         else None
-    v = c._step_vector(step)
-    v.pointwiseMult(v, c._lambda_diagonal)
-    y = v.duplicate()
-    c.ksp.solve(v, y)
-    response = c._gather(y)
+    response = c.response(step)
     if comm.rank == 0:
         assert np.allclose(response[c.lam_pos], step, rtol=1e-10)
         expected = p.G @ step
@@ -93,13 +94,11 @@ def test_condensed_solution_is_the_regular_newtons():
     the unknowns equal those of the regular Newton to its tolerance."""
     runs = {}
     for flag in (True, False):
-        sim = simulation("six_fractures_mechanics", "time.steps=3",
-                         f"solver.condensation={str(flag).lower()}")
-        assert (sim.solver.condensed is not None) == flag
-        records = sim.run()
+        records, values, summary = solved("six_fractures_mechanics", "time.steps=3",
+                                          f"solver.condensation={str(flag).lower()}")
+        assert (summary["condensed"] is not None) == flag
         assert all(r["converged"] for r in records)
-        runs[flag] = (records, unknowns(sim))
-        sim.close()
+        runs[flag] = (records, values)
     cond, regular = runs[True][0], runs[False][0]
     assert [r["iterations"] for r in cond] == [0, 0, 0]
     assert all(r["factorizations"] == 0 for r in cond)
@@ -116,17 +115,13 @@ def test_a_face_newton_that_fails_leaves_the_solve_to_the_regular_newton(monkeyp
     """No face iteration allowed: the candidate is dropped and the regular Newton solves from
     the original start, to the same solution as with condensation off."""
     monkeypatch.setattr(condensed, "MAX_IT", 0)
-    sim = simulation("six_fractures_mechanics", "time.steps=1")
-    (rec,) = sim.run()
-    got = unknowns(sim)
-    sim.close()
-    sim = simulation("six_fractures_mechanics", "time.steps=1", "solver.condensation=false")
-    (ref,) = sim.run()
+    (rec,), got, _ = solved("six_fractures_mechanics", "time.steps=1")
+    (ref,), expected, _ = solved("six_fractures_mechanics", "time.steps=1",
+                                 "solver.condensation=false")
     assert rec["converged"] and rec["iterations"] == ref["iterations"] > 0
     assert rec["face_iterations"] == 0
-    for a, b in zip(got, unknowns(sim), strict=True):
+    for a, b in zip(got, expected, strict=True):
         assert np.array_equal(a, b)
-    sim.close()
 
 
 @pytest.mark.parametrize("overrides", [["degree=1"], ["contact.formulation=stabilized_mixed"],
@@ -134,7 +129,7 @@ def test_a_face_newton_that_fails_leaves_the_solve_to_the_regular_newton(monkeyp
 def test_condensation_is_used_only_where_it_applies(overrides):
     """Not with P1 (singular face problem), not for other formulations, not with an iterative
     mechanics solver."""
-    sim = simulation("six_fractures_mechanics", "time.steps=1", *overrides)
+    sim = physics("six_fractures_mechanics", "time.steps=1", *overrides)
     assert sim.solver.condensed is None
     assert sim.describe()["condensed"] is None
     sim.close()
@@ -153,15 +148,13 @@ def test_a_block_held_only_by_contact_is_solved_without_condensation(caplog):
     raw["boundary_conditions"] = [{"boundary": "bottom", "displacement": [0.0, 0.0]},
                                   {"boundary": "top", "traction": [0.0, -1.0e6]}]
     scene = scene_from_dict(raw)
-    with caplog.at_level("WARNING", logger="poromech"):
-        sim = MechanicsSimulation(scene, build_mesh(scene, comm), Timer())
-    assert sim.solver.condensed is None
+    with caplog.at_level("WARNING", logger="poromech"), Run(scene) as run:
+        summary = run.execute()
+        tn = run.physics.model.face_fields()["traction_n"]
+    assert summary["condensed"] is None
     assert "not condensed" in caplog.text
-    (rec,) = sim.run()
-    assert rec["converged"]
-    tn = sim.model.face_fields()[:, 2]
+    assert summary["solves"][0]["converged"]
     assert np.all(tn < 0.0) and abs(tn.mean() + 1.0e6) < 1e-2 * 1.0e6  # it carries the load
-    sim.close()
 
 
 def test_a_face_newton_stagnating_at_round_off_hands_its_result_to_the_regular_check(
@@ -170,14 +163,9 @@ def test_a_face_newton_stagnating_at_round_off_hands_its_result_to_the_regular_c
     when it no longer decreases its residual, and its result, within the regular tolerance, is
     accepted by the regular Newton at iteration 0 instead of being thrown away."""
     monkeypatch.setattr(condensed, "SAFETY", 1e-30)
-    sim = simulation("six_fractures_mechanics", "time.steps=1")
-    (rec,) = sim.run()
-    got = unknowns(sim)
-    sim.close()
+    (rec,), got, _ = solved("six_fractures_mechanics", "time.steps=1")
     assert rec["converged"] and rec["iterations"] == 0
     assert rec["face_iterations"] > condensed.MAX_WATCHDOG
-    sim = simulation("six_fractures_mechanics", "time.steps=1", "solver.condensation=false")
-    sim.run()
-    for a, b in zip(got, unknowns(sim), strict=True):
+    _, expected, _ = solved("six_fractures_mechanics", "time.steps=1", "solver.condensation=false")
+    for a, b in zip(got, expected, strict=True):
         assert np.abs(a - b).max() <= 1e-8 * np.abs(b).max()
-    sim.close()

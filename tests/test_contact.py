@@ -9,9 +9,8 @@ import pytest
 from conftest import ROOT
 from mpi4py import MPI
 
-from poromech.run import MechanicsSimulation, build_mesh
+from poromech.run import Run, build_mesh
 from poromech.scene.loading import load_scene
-from poromech.timing import Timer
 from poromech.verification.jumps import exact_jump, jump_errors
 
 comm = MPI.COMM_WORLD
@@ -19,19 +18,22 @@ FORMULATIONS = ["nitsche", "mean_nitsche", "stabilized_mixed", "mixed"]
 
 
 def solve(name: str, *overrides: str):
+    """Scene, mesh, physics (its solver freed, its model kept) and step records of a run."""
     scene = load_scene(ROOT / "configs" / f"{name}.yaml", list(overrides))
-    fm = build_mesh(scene, comm)
-    sim = MechanicsSimulation(scene, fm, Timer())
-    sim.run()
-    return scene, fm, sim
+    with Run(scene) as run:
+        records = run.execute()["solves"]
+        return scene, run.mesh, run.physics, records
 
 
 def errors(name: str, *overrides: str):
-    scene, fm, sim = solve(name, *overrides)
+    scene, fm, sim, records = solve(name, *overrides)
     err = jump_errors(sim.model.u, fm, exact_jump(scene))
-    values = sim.model.face_fields()
-    sim.close()
-    return err, values, sim
+    return err, sim.model.face_fields(), sim, records
+
+
+def four(values: dict) -> np.ndarray:
+    """Jumps and tractions of the owned faces, ``(faces, 4)``."""
+    return np.column_stack([values[k] for k in ("jump_n", "jump_t", "traction_n", "traction_t")])
 
 
 def rate(e0: float, e1: float) -> float:
@@ -52,8 +54,8 @@ def test_sneddon_opening(degree, bounds):
 @pytest.mark.parametrize("formulation", FORMULATIONS)
 def test_sneddon_fully_open_with_contact(formulation):
     """With contact switched on, the pressurized crack stays open and the answer is unchanged."""
-    ref, _, _ = errors("sneddon")
-    err, values, sim = errors("sneddon", f"contact.formulation={formulation}")
+    ref, *_ = errors("sneddon")
+    err, values, sim, _ = errors("sneddon", f"contact.formulation={formulation}")
     assert abs(err["l2"] - ref["l2"]) < 0.01 * ref["l2"]
     states = sim.model.states(values)
     assert comm.allreduce(int(np.count_nonzero(states)), op=MPI.SUM) == 0
@@ -68,14 +70,14 @@ def test_inclined_crack_slip(formulation):
     tn_exact = -p["sigma"] * np.sin(p["psi"]) ** 2
     errs = []
     for m in (0, 1):
-        err, values, sim = errors("inclined_crack_slip", f"contact.formulation={formulation}",
-                                  f"mesh.refinement={m}")
+        err, values, sim, _ = errors("inclined_crack_slip", f"contact.formulation={formulation}",
+                                     f"mesh.refinement={m}")
         errs.append(err)
         assert err["l2_n"] < 0.02 * err["l2"]
         inner = np.abs(sim.model.fm.fractures.s - p["b"]) < 0.8 * p["b"]
         assert np.all(sim.model.states(values)[inner] == 2)  # tip faces may differ
-        assert np.allclose(values[inner, 2], tn_exact, rtol=0.02)
-        assert np.allclose(np.abs(values[inner, 3]), p["F"] * abs(tn_exact), rtol=0.02)
+        assert np.allclose(values["traction_n"][inner], tn_exact, rtol=0.02)
+        assert np.allclose(np.abs(values["traction_t"][inner]), p["F"] * abs(tn_exact), rtol=0.02)
     assert errs[0]["l2"] < 1.1e-2 and errs[1]["l2"] < 5.5e-3
     assert 0.85 < rate(errs[0]["l2"], errs[1]["l2"]) < 1.2
 
@@ -84,8 +86,8 @@ def test_inclined_crack_slip(formulation):
 @pytest.mark.parametrize("degree", [1, 2])
 def test_inclined_crack_stick_is_exact(formulation, degree):
     """In the stick regime the exact field is affine: every method reproduces it to round-off."""
-    err, values, sim = errors("inclined_crack_stick", f"contact.formulation={formulation}",
-                              f"degree={degree}")
+    err, values, sim, _ = errors("inclined_crack_stick", f"contact.formulation={formulation}",
+                                 f"degree={degree}")
     slip_scale = 4 * (1 - 0.25**2) / 1e10 * 1e7  # m, the slip of a released crack
     assert err["max"] < 1e-9 * slip_scale  # absolute: the exact jump is zero
     if not (formulation == "mixed" and degree == 1):  # P1-P0: multipliers are not unique
@@ -94,29 +96,29 @@ def test_inclined_crack_stick_is_exact(formulation, degree):
 
 @pytest.mark.parametrize("formulation", ["nitsche", "mixed"])
 def test_inclined_crack_frictionless(formulation):
-    err, values, sim = errors("inclined_crack_frictionless", f"contact.formulation={formulation}")
+    err, values, *_ = errors("inclined_crack_frictionless", f"contact.formulation={formulation}")
     assert err["l2"] < 1.06e-2
     assert err["l2_n"] < 0.02 * err["l2"]
-    assert np.allclose(values[:, 3], 0.0, atol=1e-6 * np.abs(values[:, 2]).max())
+    assert np.allclose(values["traction_t"], 0.0, atol=1e-6 * np.abs(values["traction_n"]).max())
 
 
 @pytest.mark.parametrize("degree", [1, 2])
 def test_stabilized_mixed_equals_mean_nitsche(degree):
     """Eliminating the multipliers of (5) gives (7): the two must agree to solver tolerance."""
-    _, a, _ = errors("inclined_crack_slip", "contact.formulation=stabilized_mixed",
-                     f"degree={degree}")
-    _, b, _ = errors("inclined_crack_slip", "contact.formulation=mean_nitsche",
-                     f"degree={degree}")
-    scale = np.abs(a[:, :4]).max(axis=0)
-    assert np.all(np.abs(a[:, :4] - b[:, :4]).max(axis=0) <= 1e-8 * scale)
+    a = four(errors("inclined_crack_slip", "contact.formulation=stabilized_mixed",
+                    f"degree={degree}")[1])
+    b = four(errors("inclined_crack_slip", "contact.formulation=mean_nitsche",
+                    f"degree={degree}")[1])
+    scale = np.abs(a).max(axis=0)
+    assert np.all(np.abs(a - b).max(axis=0) <= 1e-8 * scale)
 
 
 @pytest.mark.parametrize("theta", [-1, 0, 1])
 def test_nitsche_theta_variants(theta):
-    ref, _, _ = errors("inclined_crack_slip")
-    err, _, sim = errors("inclined_crack_slip", f"contact.theta={theta}")
+    ref, *_ = errors("inclined_crack_slip")
+    err, _, _, records = errors("inclined_crack_slip", f"contact.theta={theta}")
     assert abs(err["l2"] - ref["l2"]) < 0.05 * ref["l2"]
-    assert sim.records[-1]["converged"]
+    assert records[-1]["converged"]
 
 
 def test_tresca_with_the_coulomb_bound_reproduces_coulomb():
@@ -125,38 +127,38 @@ def test_tresca_with_the_coulomb_bound_reproduces_coulomb():
     scene = load_scene(ROOT / "configs" / "inclined_crack_slip.yaml")
     p = scene.parameters
     s = float(p["F"] * p["sigma"] * np.sin(p["psi"]) ** 2)
-    e_coulomb, coulomb, _ = errors("inclined_crack_slip")
-    e_tresca, tresca, _ = errors("inclined_crack_slip", "contact.friction=tresca",
-                                 f"contact.slip_bound={s!r}")
-    slip = np.abs(coulomb[:, 1]).max()
-    assert np.abs(tresca[:, 1] - coulomb[:, 1]).max() < 0.01 * slip
+    e_coulomb, coulomb, *_ = errors("inclined_crack_slip")
+    e_tresca, tresca, *_ = errors("inclined_crack_slip", "contact.friction=tresca",
+                                  f"contact.slip_bound={s!r}")
+    slip = np.abs(coulomb["jump_t"]).max()
+    assert np.abs(tresca["jump_t"] - coulomb["jump_t"]).max() < 0.01 * slip
     assert abs(e_tresca["l2"] - e_coulomb["l2"]) < 0.05 * e_coulomb["l2"]
 
 
 def test_only_what_is_needed_is_built():
     """Nitsche: u only. Mixed: λ (2) and jump averages. Frictionless: no tangential unknowns.
     Open pressurized crack: a linear problem without contact terms."""
-    _, _, sim = solve("inclined_crack_slip")
+    _, _, sim, _ = solve("inclined_crack_slip")
     assert [f.name for f in sim.model.unknowns] == ["u"]
-    _, _, sim = solve("inclined_crack_slip", "contact.formulation=mixed")
+    _, _, sim, _ = solve("inclined_crack_slip", "contact.formulation=mixed")
     names = [f.name for f in sim.model.unknowns]
     assert names == ["u", "lambda", "averages"]
     assert sim.model.lam.function_space.dofmap.index_map_bs == 2
-    _, _, sim = solve("inclined_crack_frictionless", "contact.formulation=mixed")
+    _, _, sim, _ = solve("inclined_crack_frictionless", "contact.formulation=mixed")
     assert sim.model.lam.function_space.dofmap.index_map_bs == 1
     assert sim.model.avg.function_space.dofmap.index_map_bs == 1
-    _, _, sim = solve("sneddon")
+    _, _, sim, records = solve("sneddon")
     assert sim.model.linear and [f.name for f in sim.model.unknowns] == ["u"]
-    assert sim.records[0]["iterations"] == 1
+    assert records[0]["iterations"] == 1
 
 
 # -- contact states (issue 7 §2) ----------------------------------------------------------------
 @pytest.mark.parametrize("formulation", ["nitsche", "mixed"])
 def test_closed_frictionless_faces_slip(formulation):
     """Without friction a closed face slides: its state is slip, never stick."""
-    _, values, sim = errors("inclined_crack_frictionless", f"contact.formulation={formulation}")
+    _, values, sim, _ = errors("inclined_crack_frictionless", f"contact.formulation={formulation}")
     states = sim.model.states(values)
-    closed = values[:, 2] < 0
+    closed = values["traction_n"] < 0
     assert closed.sum() > 0.9 * len(closed)
     assert np.all(states[closed] == 2) and not np.any(states == 1)
 
@@ -165,16 +167,15 @@ def test_closed_frictionless_faces_slip(formulation):
 def test_states_agree_with_the_written_face_means(formulation):
     """Open exactly where the written traction_n is zero; slip exactly where the written
     tractions are on the Coulomb cone. The slipping crack is closed everywhere, tips included."""
-    scene, _, sim = solve("inclined_crack_slip", f"contact.formulation={formulation}")
+    scene, _, sim, _ = solve("inclined_crack_slip", f"contact.formulation={formulation}")
     values = sim.model.face_fields()
     states = sim.model.states(values)
-    tn, tt = values[:, 2], values[:, 3]
+    tn, tt = values["traction_n"], values["traction_t"]
     assert np.array_equal(states == 0, tn >= 0)
     closed = tn < 0
     on_cone = np.abs(tt) >= (1 - 1e-6) * scene.contact.friction_coefficient * np.abs(tn)
     assert np.array_equal(states[closed] == 2, on_cone[closed])
     assert np.all(states > 0)
-    sim.close()
 
 
 def test_readme_defines_contact_states():
@@ -192,11 +193,11 @@ def test_readme_defines_contact_states():
 def test_face_means_use_the_contact_quadrature():
     """Face fields are integrated with the Gauss points of the contact terms: the contact
     fraction of a face is a multiple of the Gauss weights (P2: 5/18, 8/18, 5/18)."""
-    _, values, _ = errors("inclined_crack_slip", "mesh.refinement=0")
+    fraction = errors("inclined_crack_slip", "mesh.refinement=0")[1]["contact_fraction"]
     weights = np.array([5, 8, 5]) / 18
     sums = {round(float(np.dot(weights, c)), 12) for c in np.ndindex(2, 2, 2)}
-    assert {round(float(f), 12) for f in values[:, 5]} <= sums
-    assert np.any((values[:, 5] > 0) & (values[:, 5] < 1))  # a tip face partly in contact
+    assert {round(float(f), 12) for f in fraction} <= sums
+    assert np.any((fraction > 0) & (fraction < 1))  # a tip face partly in contact
 
 
 # -- Nitsche parameters (issue 7 §3) ------------------------------------------------------------

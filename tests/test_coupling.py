@@ -219,23 +219,23 @@ def test_one_rank_equals_two_ranks(tmp_path, formulation):
 
 
 def test_only_what_a_scene_needs_is_built(tmp_path):
-    from poromech.coupling.poromechanics import PoromechanicsSimulation
-    from poromech.flow.physics import FlowSimulation
-    from poromech.mechanics.physics import MechanicsSimulation
-    from poromech.run import build_mesh, make_simulation
+    from poromech.coupling.poromechanics import Poromechanics
+    from poromech.flow.physics import FlowPhysics
+    from poromech.mechanics.physics import MechanicsPhysics
+    from poromech.run import PHYSICS, build_mesh
     from poromech.timing import Timer
 
     def build(path, *overrides):
         scene = load_scene(path, overrides)
-        return make_simulation(scene, build_mesh(scene, comm), Timer())
+        return PHYSICS[scene.physics](scene, build_mesh(scene, comm), Timer())
 
     sim = build(TERZAGHI)  # no fractures: no contact, no fracture flow unknowns
-    assert isinstance(sim, PoromechanicsSimulation)
+    assert isinstance(sim, Poromechanics)
     assert sim.model.p_m is not None and sim.model.p_f is None and sim.model.faces is None
     assert [f.name for f in sim.model.unknowns] == ["u"]
     counts = sim.flow.dofs.counts
     assert counts["fracture_faces"] == counts["nodes"] == counts["traces"] == 0
-    assert sim.N == counts["cells"]
+    assert sim.fixed_point.N == counts["cells"]
     assert np.all(sim.flow.properties.storage > 0)
     sim.close()
     sim = build(TERZAGHI, "material.biot=0")  # b = 0: no Biot term, no matrix pressure
@@ -249,11 +249,11 @@ def test_only_what_a_scene_needs_is_built(tmp_path):
     sim.close()
     mech = ROOT / "configs" / "six_fractures_mechanics.yaml"
     sim = build(mech)  # mechanics only: no flow, no pressures
-    assert isinstance(sim, MechanicsSimulation) and not hasattr(sim, "flow")
+    assert isinstance(sim, MechanicsPhysics) and not hasattr(sim, "flow")
     assert sim.model.p_m is None and sim.model.p_f is None
     sim.close()
     sim = build(ROOT / "configs" / "flow_six_fractures.yaml")  # flow only: no mechanics
-    assert isinstance(sim, FlowSimulation) and not hasattr(sim, "model")
+    assert isinstance(sim, FlowPhysics) and not hasattr(sim, "model")
     sim.close()
 
 
@@ -448,18 +448,16 @@ def test_scene_options_read_at_set_up_reach_petsc_and_do_not_linger(tmp_path):
     were created, before that, and were silently ignored. Afterwards no scene option is left in
     the database (another solver with the same prefix would take it for a command-line one).
     The mechanics' MUMPS options reach the factorization of the condensed ``mixed`` solve too."""
-    from poromech.run import build_mesh, make_simulation
-    from poromech.timing import Timer
+    from poromech.run import Run
 
     for condensation in ("false", "true"):
         scene = load_scene(ROOT / "configs" / "six_fractures.yaml", [
             "contact.formulation=mixed", "coupling.method=newtonkrylov",
             "solver.petsc={mat_mumps_icntl_14: 37}", "flow.petsc={mat_mumps_icntl_14: 41}",
-            f"solver.condensation={condensation}"])
-        sim = make_simulation(scene, build_mesh(scene, comm), Timer())
-        try:
-            sim.initialize()
-            assert sim.solve(100.0, 100.0).converged
+            f"solver.condensation={condensation}", "time={times: [100.0]}"])
+        with Run(scene) as run:
+            assert run.execute()["solves"][0]["converged"]
+            sim = run.physics
             condensed = sim.mech.solver.condensed
             assert (condensed is not None) == (condensation == "true")
             ksp = sim.mech.solver.snes.getKSP() if condensed is None else condensed.ksp
@@ -471,5 +469,4 @@ def test_scene_options_read_at_set_up_reach_petsc_and_do_not_linger(tmp_path):
                          "coupling_mat_mffd_err", "coupling_snes_mf", "mech_pc_type",
                          "mech_condensed_mat_mumps_icntl_14", "mech_condensed_mat_mumps_icntl_24"):
                 assert not db.hasName(name), name
-        finally:
-            sim.close()
+

@@ -1,4 +1,4 @@
-"""Flow-only runs through ``run_flow``/``run_scene``: outputs, probes, report, failures, input."""
+"""Flow-only runs through ``run_scene``: outputs, probes, report, failures, input."""
 
 import csv
 import re
@@ -10,10 +10,8 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from poromech.errors import ConfigError, SolverError
-from poromech.flow.physics import run_flow
-from poromech.run import RunContext, build_mesh, run_scene
+from poromech.run import Run, build_mesh, run_scene
 from poromech.scene.loading import load_scene, scene_from_dict
-from poromech.timing import Timer
 
 comm = MPI.COMM_WORLD
 
@@ -41,11 +39,9 @@ def flow_scene(**flow) -> dict:
     return scene
 
 
-def run(raw: dict, outdir) -> RunContext:
-    scene = scene_from_dict(raw)
-    ctx = RunContext(scene, build_mesh(scene, comm), outdir, Timer())
-    run_flow(ctx)
-    return ctx
+def run(raw: dict, outdir) -> dict:
+    """The summary of a run of a raw scene."""
+    return run_scene(scene_from_dict(raw), outdir, comm)
 
 
 def read_csv(path):
@@ -55,14 +51,14 @@ def read_csv(path):
 
 
 def test_steady_outputs_and_report(tmp_path):
-    ctx = run(flow_scene(), tmp_path)
+    summary = run(flow_scene(), tmp_path)
     for name in ("flow.xdmf", "fractures_flow.xdmf", "probe_bar.csv", "probe_vertical.csv"):
         assert (tmp_path / name).exists(), name
     text = (tmp_path / "fractures_flow.xdmf").read_text()
     for field in ("p_f", "p_plus", "p_minus", "d_f", "u_plus", "u_minus", "q_f"):
         assert f'Name="{field}"' in text
     assert 'Name="p_m"' in (tmp_path / "flow.xdmf").read_text()
-    rep = ctx.summary["flow"]
+    rep = summary["flow"]
     assert rep["unknowns"]["total"] > 1000 and rep["unknowns"]["nodes"] > 0
     solve = rep["solves"][0]
     assert solve["reason"].startswith("CONVERGED") and 0 < solve["iterations"] < 100
@@ -87,8 +83,8 @@ def test_transient_with_storage(tmp_path):
     raw = flow_scene(biot_modulus=1e9, porosity=0.2, initial_pressure=1e5)
     raw["time"] = {"final": 100.0, "steps": 4}
     raw["output"] = {"every": 2}
-    ctx = run(raw, tmp_path)
-    rep = ctx.summary["flow"]
+    summary = run(raw, tmp_path)
+    rep = summary["flow"]
     assert len(rep["solves"]) == 4
     assert [s["time"] for s in rep["solves"]] == pytest.approx([25, 50, 75, 100])
     assert all(s["mass_balance"]["relative_residual"] < 1e-8 for s in rep["solves"])
@@ -100,33 +96,32 @@ def test_transient_with_storage(tmp_path):
 
 def test_solver_failure_raises(tmp_path):
     raw = flow_scene(petsc={"ksp_max_it": 2, "ksp_rtol": 1e-14})
-    scene = scene_from_dict(raw)
-    ctx = RunContext(scene, build_mesh(scene, comm), tmp_path, Timer())
-    with pytest.raises(SolverError) as err:
-        run_flow(ctx)
+    with Run(scene_from_dict(raw), tmp_path, comm) as failed:
+        with pytest.raises(SolverError) as err:
+            failed.execute()
     assert err.value.reason == "DIVERGED_MAX_IT"
     assert len(err.value.history) == 3
     assert "did not converge" in str(err.value)
-    assert "flow" in ctx.summary
+    assert "flow" in failed.summary and failed.summary["status"].startswith("failed")
 
 
 def test_command_line_options_win_and_are_not_left(tmp_path):
     opts = PETSc.Options()
     opts["flow_ksp_rtol"] = 1e-4
     try:
-        ctx = run(flow_scene(petsc={"ksp_rtol": 1e-12, "pc_type": "jacobi",
+        summary = run(flow_scene(petsc={"ksp_rtol": 1e-12, "pc_type": "jacobi",
                                     "ksp_max_it": 5000}), tmp_path)
     finally:
         opts.delValue("flow_ksp_rtol")
-    solver = ctx.summary["flow"]["solver"]
+    solver = summary["flow"]["solver"]
     assert solver["pc_type"] == "jacobi" and solver["max_it"] == 5000  # scene over defaults
     assert solver["rtol"] == 1e-4  # the command line over the scene
     assert not [k for k in opts.getAll() if k.startswith("flow_")]
 
 
 def test_direct_solver_matches_iterative(tmp_path):
-    it = run(flow_scene(), tmp_path / "it").summary["flow"]["conservation"]
-    lu = run(flow_scene(linear_solver="direct"), tmp_path / "lu").summary["flow"]
+    it = run(flow_scene(), tmp_path / "it")["flow"]["conservation"]
+    lu = run(flow_scene(linear_solver="direct"), tmp_path / "lu")["flow"]
     assert lu["solver"]["pc_type"] == "lu"
     assert lu["conservation"]["boundary_fluxes"]["right"]["matrix"] == pytest.approx(
         it["boundary_fluxes"]["right"]["matrix"], rel=1e-7)
@@ -189,9 +184,11 @@ def test_aperture_change_is_accumulated(tmp_path):
     """d_f = 1e-4 (1 + t/10): the fractures store |Γ| d'(t) = |Γ| 1e-5 m²/s (DESIGN §5)."""
     raw = flow_scene(aperture="1e-4*(1 + t/10)")
     raw["time"] = {"final": 4.0, "steps": 2}
-    ctx = run(raw, tmp_path)
-    length = ctx.fm.geometry.fracture_lengths().sum()
-    for s in ctx.summary["flow"]["solves"]:
+    summary = run(raw, tmp_path)
+    from poromech.scene.geometry import plane_geometry
+
+    length = plane_geometry(scene_from_dict(raw)).fracture_lengths().sum()
+    for s in summary["flow"]["solves"]:
         bal = s["mass_balance"]
         assert bal["storage_rate"] == pytest.approx(1e-5 * length, rel=1e-9)
         assert bal["relative_residual"] < 1e-8

@@ -12,12 +12,9 @@ from test_flow_driver import flow_scene
 
 from poromech.flow.balance import boundary_fluxes, compute_fluxes
 from poromech.flow.boundary import FlowBoundary
-from poromech.flow.physics import run_flow
 from poromech.flow.problem import DarcyProblem, FlowProperties
-from poromech.run import RunContext
-from poromech.run import build_mesh as build_mesh_of_scene
+from poromech.run import run_scene
 from poromech.scene.loading import scene_from_dict
-from poromech.timing import Timer
 from poromech.verification.flow import (
     barrier_metrics,
     barrier_scene,
@@ -87,16 +84,14 @@ def solve_barrier(comm, owner=None) -> dict:
 
 
 def run_driver(comm, outdir) -> dict:
-    """``run_flow`` on a transient network scene with probes; probe CSVs read on rank 0."""
+    """A transient network scene with probes, run; probe CSVs read on rank 0."""
     raw = flow_scene(biot_modulus=1e9, porosity=0.1, initial_pressure=1e5)
     raw["time"] = {"final": 50.0, "steps": 2}
-    scene = scene_from_dict(raw)
-    ctx = RunContext(scene, build_mesh_of_scene(scene, comm), Path(outdir), Timer())
-    run_flow(ctx)
+    summary = run_scene(scene_from_dict(raw), Path(outdir), comm)
     if comm.rank != 0:
         return {}
     probes = {n: (Path(outdir) / f"probe_{n}.csv").read_text() for n in ("bar", "vertical")}
-    return {"summary": ctx.summary["flow"]["conservation"], "probes": probes}
+    return {"summary": summary["flow"]["conservation"], "probes": probes}
 
 
 CODE = f"""
@@ -153,7 +148,7 @@ def test_two_ranks_blocking_intersection(results):
 
 @pytest.mark.mpi
 def test_two_ranks_driver_probes_and_report(results):
-    """Transient run_flow: identical probes (to solver tolerance) and conservation report."""
+    """Transient flow run: identical probes (to solver tolerance) and conservation report."""
     serial, parallel = results
     a, b = serial["driver"], parallel["driver"]
     for name in ("bar", "vertical"):

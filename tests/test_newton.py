@@ -6,27 +6,41 @@ from conftest import ROOT
 from mpi4py import MPI
 
 from poromech.errors import SolverError
-from poromech.run import MechanicsSimulation, build_mesh
+from poromech.run import Run, build_mesh
 from poromech.scene.loading import load_scene
-from poromech.timing import Timer
 
 comm = MPI.COMM_WORLD
 
 
-def simulation(name: str, *overrides: str):
-    scene = load_scene(ROOT / "configs" / f"{name}.yaml", list(overrides))
-    return MechanicsSimulation(scene, build_mesh(scene, comm), Timer())
+def run_of(name: str, *overrides: str, prepare=None) -> Run:
+    """An in-memory run of a shipped scene (use as a context manager, then ``execute``)."""
+    return Run(load_scene(ROOT / "configs" / f"{name}.yaml", list(overrides)), prepare=prepare)
+
+
+def records_of(name: str, *overrides: str, prepare=None) -> list[dict]:
+    """The step records of an in-memory run of a shipped scene."""
+    with run_of(name, *overrides, prepare=prepare) as run:
+        return run.execute()["solves"]
+
+
+def no_predictor(physics) -> None:
+    physics.predictor.extrapolate = False
 
 
 @pytest.mark.parametrize("formulation", ["nitsche", "mean_nitsche", "stabilized_mixed", "mixed"])
 def test_jacobian_matches_finite_differences(formulation):
     """J·d equals the central difference of the residual, block by block, at a slipping state
     (perturbations scaled entry by entry so that no contact state switches)."""
-    sim = simulation("inclined_crack_slip", "degree=1", f"contact.formulation={formulation}")
-    sim.run()
-    s = sim.solver
+    with run_of("inclined_crack_slip", "degree=1", f"contact.formulation={formulation}") as run:
+        run.execute()
+        check_jacobian(run.physics.solver)
+
+
+def check_jacobian(s) -> None:
     x = s.x.copy()
-    offsets = s._blocks[0]
+    sizes = [f.function_space.dofmap.index_map.size_local * f.function_space.dofmap.index_map_bs
+             for f in s.u]
+    offsets = np.concatenate([[0], np.cumsum(sizes)])
     s.snes.computeJacobian(x, s.A, s.A)
     rng = np.random.default_rng(3)
     fp, fm = s.b.duplicate(), s.b.duplicate()
@@ -42,51 +56,40 @@ def test_jacobian_matches_finite_differences(formulation):
         xp, xm = x.copy(), x.copy()
         xp.axpy(h, d)
         xm.axpy(-h, d)
-        s._cache_valid = False
         s.snes.computeFunction(xp, fp)
-        s._cache_valid = False
         s.snes.computeFunction(xm, fm)
         fd = (fp - fm).getArray() / (2 * h)
         jd = s.A.createVecLeft()
         s.A.mult(d, jd)
         assert np.linalg.norm(fd - jd.getArray()) <= 1e-5 * np.linalg.norm(fd)
-    sim.close()
 
 
 def test_contact_line_search_converges_where_full_steps_cycle():
     """On the six-fracture scene, plain Newton (PETSc 'basic') ping-pongs between active sets;
     poromech's line search converges in a few iterations."""
-    sim = simulation("six_fractures_mechanics", "time.steps=1", "solver.line_search=basic",
-                     "solver.petsc.snes_max_it=40")
     with pytest.raises(SolverError):
-        sim.run()
-    sim.close()
-    sim = simulation("six_fractures_mechanics", "time.steps=1")
-    records = sim.run()
+        records_of("six_fractures_mechanics", "time.steps=1", "solver.line_search=basic",
+                   "solver.petsc.snes_max_it=40")
+    records = records_of("six_fractures_mechanics", "time.steps=1")
     assert records[0]["converged"] and records[0]["iterations"] <= 12
-    sim.close()
 
 
 def test_factorization_reused_across_steps_of_a_linear_problem():
     """An open pressurized crack is linear: one factorization serves every time step."""
-    sim = simulation("sneddon", "fracture_pressure=1e7*t", "time={final: 1.0, steps: 4}")
-    sim.model.extrapolate = False  # the predictor would start every later step at the answer
-    records = sim.run()
+    # without the predictor, which would start every later step at the answer
+    records = records_of("sneddon", "fracture_pressure=1e7*t", "time={final: 1.0, steps: 4}",
+                         prepare=no_predictor)
     assert [r["factorizations"] for r in records] == [1, 0, 0, 0]
     assert all(r["iterations"] == 1 for r in records)
-    sim.close()
 
 
 def test_reuse_can_be_switched_off():
-    sim = simulation("sneddon", "fracture_pressure=1e7*t", "time={final: 1.0, steps: 3}",
-                     "solver.reuse_jacobian=false")
-    sim.model.extrapolate = False
-    records = sim.run()
+    records = records_of("sneddon", "fracture_pressure=1e7*t", "time={final: 1.0, steps: 3}",
+                         "solver.reuse_jacobian=false", prepare=no_predictor)
     assert [r["factorizations"] for r in records] == [1, 1, 1]
     # the matrix is assembled every time: PETSc keeps the factors of an unmodified matrix, so a
     # kept Jacobian would be counted as factorized without being factorized again
     assert [r["jacobian_reuses"] for r in records] == [0, 0, 0]
-    sim.close()
 
 
 @pytest.mark.parametrize(("name", "overrides"), [
@@ -102,10 +105,10 @@ def test_jacobian_kept_for_an_unchanged_active_set_changes_no_iterate(name, over
     Jacobian and Newton crawled to its iteration limit on an open Sneddon crack."""
     runs = {}
     for keep in (True, False):
-        sim = simulation(name, *overrides)
-        sim.solver.states_determine_jacobian = keep
-        runs[keep] = sim.run()
-        sim.close()
+        def configure(physics, keep=keep):
+            assert physics.solver.states_determine_jacobian  # 2D: piecewise affine
+            physics.solver.states_determine_jacobian = keep
+        runs[keep] = records_of(name, *overrides, prepare=configure)
     assert [r["iterations"] for r in runs[True]] == [r["iterations"] for r in runs[False]]
     roundoff = 1e-12 * runs[False][0]["residuals"][0]
     for kept, fresh in zip(runs[True], runs[False], strict=True):
@@ -115,19 +118,29 @@ def test_jacobian_kept_for_an_unchanged_active_set_changes_no_iterate(name, over
         assert sum(r["jacobian_reuses"] for r in runs[True]) >= 1
 
 
+def stale_on_small_meshes(physics) -> None:
+    """Stale GMRES on a mesh below the size where it pays (so that the tests see it)."""
+    physics.solver.linear.stale_min_unknowns = 0
+
+
+def face_values(model) -> np.ndarray:
+    """Jumps and tractions of the owned faces, ``(faces, 4)``."""
+    f = model.face_fields()
+    return np.column_stack([f["jump_n"], f["jump_t"], f["traction_n"], f["traction_t"]])
+
+
 def test_stale_factorization_preconditions_small_active_set_changes():
     """After few contact-state switches, GMRES with the previous factorization gives the Newton
     direction; the converged solution is the one found with a refactorization per iteration.
     The choice depends on the contact states only, so a second run takes the same decisions
     and repeats the first to round-off (the choice used to depend on measured times)."""
     values, records = {}, {}
-    for run in ("true", "true again", "false"):
-        sim = simulation("six_fractures_mechanics", "time.steps=1",
-                         f"solver.stale_factorization={run.split()[0]}")
-        sim.solver.stale_min_unknowns = 0  # this mesh is below the size where stale solves pay
-        records[run] = sim.run()[0]
-        values[run] = sim.model.face_fields()[:, :4]
-        sim.close()
+    for key in ("true", "true again", "false"):
+        with run_of("six_fractures_mechanics", "time.steps=1",
+                    f"solver.stale_factorization={key.split()[0]}",
+                    prepare=stale_on_small_meshes) as run:
+            records[key] = run.execute()["solves"][0]
+            values[key] = face_values(run.physics.model)
     on, off = records["true"], records["false"]
     for key in ("iterations", "factorizations", "stale_solves"):
         assert records["true again"][key] == on[key]
@@ -148,12 +161,12 @@ def test_stale_budget_refactorizes_once_stale_solves_cost_a_factorization():
     the iterates do not change."""
     records = {}
     for budget in (0, 1, None):
-        sim = simulation("six_fractures_mechanics", "time.steps=1")
-        sim.solver.stale_min_unknowns = 0  # this mesh is below the size where stale solves pay
-        if budget is not None:
-            sim.solver.stale_budget = budget
-        records[budget] = sim.run()[0]
-        sim.close()
+        def configure(physics, budget=budget):
+            stale_on_small_meshes(physics)
+            if budget is not None:
+                physics.solver.linear.stale_budget = budget
+        records[budget] = records_of("six_fractures_mechanics", "time.steps=1",
+                                     prepare=configure)[0]
     none, one, default = records[0], records[1], records[None]
     assert none["stale_solves"] == 0 and none["factorizations"] == none["iterations"]
     assert 1 <= one["stale_solves"] < default["stale_solves"]
@@ -163,7 +176,7 @@ def test_stale_budget_refactorizes_once_stale_solves_cost_a_factorization():
         assert rec["factorizations"] + rec["stale_solves"] == rec["iterations"]
 
 
-# -- helpers on the model/solver layer ----------------------------------------------------------
+# -- the model and its Newton on their own (unit tests of the solver) ---------------------------
 def model_and_solver(name: str, *overrides: str, solver_class=None):
     from poromech.mechanics.model import MechanicsModel
     from poromech.mechanics.newton import SemiSmoothNewton
@@ -174,20 +187,6 @@ def model_and_solver(name: str, *overrides: str, solver_class=None):
     solver = (solver_class or SemiSmoothNewton)(model.F, model.J, model.unknowns, model.bcs,
                                                 prefix="test_", states=model.active_set)
     return scene, fm, model, solver
-
-
-def step_times(scene) -> list[float]:
-    return list(np.linspace(0.0, scene.time.final, scene.time.steps + 1)[1:])
-
-
-def run_steps(model, solver, times) -> list:
-    records = []
-    for t in times:
-        model.set_time(t)
-        records.append(solver.solve())
-        assert records[-1].converged, records[-1].reason
-        model.accept_step()
-    return records
 
 
 # -- active-set changes (issue 7 §2) ------------------------------------------------------------
@@ -201,7 +200,9 @@ def test_active_set_changes_count_what_switches(formulation, points):
         "six_fractures_mechanics", "time.final=100", "time.steps=1",
         f"contact.formulation={formulation}")
     assert comm.allreduce(len(model.active_set())) == points * fm.num_fracture_faces
-    rec = run_steps(model, solver, [100.0])[0]
+    model.set_time(100.0)
+    rec = solver.solve()
+    assert rec.converged
     ref = rec.residuals[0]
     for k, (changes, alpha) in enumerate(zip(rec.active_set_changes, rec.steps, strict=False)):
         if changes == 0 and alpha == 1.0:
@@ -214,24 +215,16 @@ def test_active_set_points_are_the_gauss_points():
     """Collocation of the code recovers the Gauss points of each face: here x itself."""
     import basix
     import ufl
-    from dolfinx import fem
 
     _, fm, model, solver = model_and_solver("inclined_crack_slip", "degree=2")
     x = ufl.SpatialCoordinate(fm.msh)
-    r = ufl.TestFunction(model._points.function_space)("+")
-    dG = model.params.quadrature_degree
-    from poromech.forms.contact import contact_measure
-
-    form = fem.form(x[0]("+") * r * contact_measure(model.params, model.dG),
-                    entity_maps=model.entity_maps)
-    xs = model._owned_moments(form) / model._point_weights
-    pts, _ = basix.make_quadrature(basix.CellType.interval, dG)
+    got = model.collocate(x[0]("+"))
+    pts, _ = basix.make_quadrature(basix.CellType.interval, model.params.quadrature_degree)
     sub = model.submesh
     n = sub.topology.index_map(1).size_local
-    dofs = model._points.function_space.dofmap.list[:n]
     ends = sub.geometry.x[sub.geometry.dofmaps[0][:n]][:, :, 0]
     expected = ends[:, :1] + pts[:, 0][None, :] * (ends[:, 1:] - ends[:, :1])
-    got = xs[dofs]
+    assert got.shape == expected.shape == (n, 3)
     assert np.allclose(np.sort(got, axis=1), np.sort(expected, axis=1), atol=1e-12)
     solver.destroy()
 
@@ -277,38 +270,41 @@ def test_predictor_starts_each_step_from_the_extrapolated_increment():
     six-fracture ramp (proportional loading) every step after the first takes at most one
     Newton iteration, where starting from the accepted state (zero slip increment: every
     sliding point sticks) took 4-7; the converged answer is the same."""
-    scene, fm, model, solver = model_and_solver("six_fractures_mechanics")
-    records = run_steps(model, solver, step_times(scene))
-    assert all(r.iterations <= 1 for r in records[1:])
-    faces = model.face_fields()[:, :4]
-    solver.destroy()
-    _, _, model, solver = model_and_solver("six_fractures_mechanics")
-    model.extrapolate = False
-    plain = run_steps(model, solver, step_times(scene))
-    assert all(r.iterations >= 3 for r in plain[1:])
-    scale = np.abs(faces).max(axis=0)
-    assert np.all(np.abs(model.face_fields()[:, :4] - faces).max(axis=0) <= 1e-6 * scale)
-    solver.destroy()
+    faces, records = {}, {}
+    for on in (True, False):
+        with run_of("six_fractures_mechanics", prepare=None if on else no_predictor) as run:
+            records[on] = run.execute()["solves"]
+            faces[on] = face_values(run.physics.model)
+    assert all(r["iterations"] <= 1 for r in records[True][1:])
+    assert all(r["iterations"] >= 3 for r in records[False][1:])
+    scale = np.abs(faces[True]).max(axis=0)
+    assert np.all(np.abs(faces[False] - faces[True]).max(axis=0) <= 1e-6 * scale)
 
 
 def test_predictor_uses_accepted_states_only():
     """Non-uniform steps scale the increment by the step ratio; unknowns that are not the last
     accepted ones (a restored checkpoint, a repeated solve of the same step) are kept."""
-    scene, fm, model, solver = model_and_solver("six_fractures_mechanics")
-    run_steps(model, solver, [100.0, 150.0])
-    u1, u2 = model._history[0][1][0], model._history[1][1][0]
-    model.set_time(250.0)
-    assert np.allclose(model.u.x.array, u2 + 2.0 * (u2 - u1))
-    model.u.x.array[:] = u2 + 1.0
-    model.set_time(250.0)
-    assert np.allclose(model.u.x.array, u2 + 1.0) and model._history == []
-    solver.destroy()
-    _, _, model, solver = model_and_solver("six_fractures_mechanics")
-    model.u.x.array[:] = u2  # a restored checkpoint: not the zero state of t = 0
-    run_steps(model, solver, [300.0])
-    model.set_time(400.0)
-    assert len(model._history) == 1 and np.allclose(model.u.x.array, model._history[0][1][0])
-    solver.destroy()
+    with run_of("six_fractures_mechanics", "time={times: [100.0, 150.0]}") as run:
+        run.execute()
+        mech, fm = run.physics, run.mesh
+        (t1, (u1, *_)), (t2, (u2, *_)) = mech.predictor.history
+        assert (t1, t2) == (100.0, 150.0)
+        mech.predictor.predict(250.0)
+        assert np.allclose(mech.model.u.x.array, u2 + 2.0 * (u2 - u1))
+        mech.model.u.x.array[:] = u2 + 1.0
+        mech.predictor.predict(250.0)
+        assert np.allclose(mech.model.u.x.array, u2 + 1.0) and mech.predictor.history == []
+
+    def restored(physics):  # not the zero state of t = 0
+        physics.model.u.x.array[:] = u2
+
+    scene = load_scene(ROOT / "configs" / "six_fractures_mechanics.yaml", ["time={times: [300.0]}"])
+    with Run(scene, mesh=fm, prepare=restored) as run:
+        run.execute()
+        mech = run.physics
+        assert len(mech.predictor.history) == 1
+        mech.predictor.predict(400.0)
+        assert np.allclose(mech.model.u.x.array, mech.predictor.history[0][1][0])
 
 
 @pytest.mark.slow
@@ -318,7 +314,5 @@ def test_newton_iterations_do_not_grow_with_the_mesh():
     levels = [("mesh.size=0.095", "mesh.fracture_size=0.085"), ("mesh.refinement=0",),
               ("mesh.refinement=1",)]
     for level in levels:
-        scene, _, model, solver = model_and_solver("six_fractures_mechanics", *level)
-        records = run_steps(model, solver, step_times(scene))
-        assert max(r.iterations for r in records) <= 12, (level, [r.iterations for r in records])
-        solver.destroy()
+        iterations = [r["iterations"] for r in records_of("six_fractures_mechanics", *level)]
+        assert max(iterations) <= 12, (level, iterations)

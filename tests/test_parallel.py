@@ -8,9 +8,8 @@ import pytest
 from conftest import mechanics_scene, run_parallel
 from mpi4py import MPI
 
-from poromech.run import MechanicsSimulation, build_mesh
+from poromech.run import Run
 from poromech.scene.loading import scene_from_dict
-from poromech.timing import Timer
 
 CODE = """
 import json, sys, numpy as np
@@ -22,9 +21,8 @@ from poromech.scene.loading import scene_from_dict
 from poromech.scene.geometry import plane_geometry
 from poromech.mesh.generate import generate_mesh
 from poromech.mesh.fractured import create_fractured_mesh
-from poromech.run import MechanicsSimulation
+from poromech.run import Run
 from poromech.scene.geometry import mesh_sizes
-from poromech.timing import Timer
 comm = MPI.COMM_WORLD
 scene = scene_from_dict(json.loads('''SCENE'''))
 geo = plane_geometry(scene)
@@ -34,10 +32,12 @@ if comm.rank == 0:
     c = arrays.x[arrays.cells].mean(axis=1)
     owner = (c[:, 1] < 0.5).astype(np.int32)
 fm = create_fractured_mesh(comm, geo, arrays, owner=owner)
-sim = MechanicsSimulation(scene, fm, Timer())
-sim.run()
-vals = sim.model.face_fields()
-rows = np.column_stack([fm.fractures.index, vals[:, :4]])
+with Run(scene, mesh=fm) as run:
+    records = run.execute()["solves"]
+    model = run.physics.model
+vals = model.face_fields()
+rows = np.column_stack([fm.fractures.index] + [vals[k] for k in
+                       ("jump_n", "jump_t", "traction_n", "traction_t")])
 imap = fm.msh.topology.index_map(2)
 cut = int(np.count_nonzero((fm.fractures.plus[:, 0] >= imap.size_local) |
                            (fm.fractures.minus[:, 0] >= imap.size_local)))
@@ -47,8 +47,8 @@ if comm.rank == 0:
     rows = np.concatenate(rows)
     rows = rows[np.argsort(rows[:, 0])]
     print(json.dumps({"values": rows[:, 1:].tolist(), "cut": cut,
-                      "iterations": [r["iterations"] for r in sim.records],
-                      "dofs": sim.model.dof_count()}))
+                      "iterations": [r["iterations"] for r in records],
+                      "dofs": model.dof_count()}))
 """
 
 
@@ -58,14 +58,15 @@ def test_two_ranks_equal_one_rank(formulation, degree):
     raw = mechanics_scene(degree=degree)
     raw["contact"]["formulation"] = formulation
     result = run_parallel(CODE.replace("SCENE", json.dumps(raw)))
-    scene = scene_from_dict(raw)
-    fm = build_mesh(scene, MPI.COMM_WORLD)
-    sim = MechanicsSimulation(scene, fm, Timer())
-    sim.run()
-    vals = sim.model.face_fields()[np.argsort(fm.fractures.index), :4]
+    with Run(scene_from_dict(raw), comm=MPI.COMM_WORLD) as run:
+        records = run.execute()["solves"]
+        model, fm = run.physics.model, run.mesh
+    faces = model.face_fields()
+    vals = np.column_stack([faces[k] for k in ("jump_n", "jump_t", "traction_n", "traction_t")])
+    vals = vals[np.argsort(fm.fractures.index)]
     par = np.array(result["values"])
     assert result["cut"] > 5  # the process boundary runs along fracture 'bar'
-    assert result["dofs"] == sim.model.dof_count()
-    assert result["iterations"] == [r["iterations"] for r in sim.records]
+    assert result["dofs"] == model.dof_count()
+    assert result["iterations"] == [r["iterations"] for r in records]
     scale = np.abs(vals).max(axis=0)
     assert np.all(np.abs(par - vals).max(axis=0) <= 1e-8 * scale)

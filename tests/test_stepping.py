@@ -6,8 +6,9 @@ from conftest import mechanics_scene
 from mpi4py import MPI
 
 from poromech.errors import SolverError
+from poromech.physics import StepResult
 from poromech.scene.loading import scene_from_dict
-from poromech.stepping import StepResult, run_steps
+from poromech.stepping import run_steps
 
 
 class Halving:

@@ -1,6 +1,6 @@
 """Flow-only runs (``physics: flow``): the Darcy physics behind the time loop.
 
-:class:`FlowSimulation` implements :class:`poromech.stepping.Physics` for a steady solve or
+:class:`FlowPhysics` implements :class:`poromech.physics.Physics` for a steady solve or
 implicit Euler steps; it builds no mechanics. Outputs: ``flow.xdmf`` and ``fractures_flow.xdmf``
 (every output time, from ``t = 0`` for transient runs), ``probe_<name>.csv`` (final time) and
 ``summary["flow"]``.
@@ -20,12 +20,12 @@ from poromech.flow.hfv import cell_gradients
 from poromech.flow.output import FlowWriter
 from poromech.flow.problem import DarcyProblem, TimeStep
 from poromech.flow.setup import flow_properties, problem_from_scene, time_dependent
-from poromech.io.checkpoint import Keyed
+from poromech.flow.state import FlowState
 from poromech.io.probes import LineSampler, write_csv
+from poromech.physics import Keyed, StepResult
 from poromech.scene.schema import Scene
-from poromech.stepping import StepResult, run_steps
 
-__all__ = ["FlowSimulation", "run_flow", "solve_record", "write_probes"]
+__all__ = ["FlowPhysics", "flow_report", "solve_record", "write_probes"]
 
 log = logging.getLogger("poromech")
 
@@ -62,8 +62,8 @@ def write_probes(scene: Scene, problem: DarcyProblem, outdir: Path) -> None:
             })
 
 
-class FlowSimulation:
-    """A flow-only scene as a :class:`~poromech.stepping.Physics` (collective methods).
+class FlowPhysics:
+    """A flow-only scene as a :class:`~poromech.physics.Physics` (collective methods).
 
     Args:
         scene: The scene (``physics: flow``).
@@ -72,6 +72,7 @@ class FlowSimulation:
     """
 
     counters = ("iterations", "seconds", "setup_seconds")
+    records_section = "flow"
 
     def __init__(self, scene: Scene, fm, timer):
         self.scene, self.fm, self.timer = scene, fm, timer
@@ -84,11 +85,10 @@ class FlowSimulation:
         self.varying = time_dependent(scene)
         self.writer: FlowWriter | None = None
         self.outdir: Path | None = None
-        self.records: list[dict] = []
-        self.has_initial_output = scene.time is not None
+        self.writes_initial_state = scene.time is not None
+        self.accepted = FlowState(self.problem)
         self._step: TimeStep | None = None
-        self._accepted_p = self.problem.p.copy()
-        self.phi_prev = self.phi_fixed = self.aperture_prev = None
+        self._porosity_fixed = None
 
     def describe(self) -> dict:
         """Nothing beyond the flow report (``summary["flow"]``)."""
@@ -100,10 +100,9 @@ class FlowSimulation:
             return None
         flow, pb = self.scene.flow, self.problem
         pb.set_pressure(flow.initial_pressure, 0.0)
-        self.phi_prev = np.full(pb.geom.num_cells, flow.porosity)
-        self.phi_fixed = self.phi_prev - pb.properties.storage * pb.cell_pressure
-        self.aperture_prev = pb.properties.aperture.copy()
-        self._accepted_p = pb.p.copy()
+        porosity = np.full(pb.geom.num_cells, flow.porosity)
+        self._porosity_fixed = porosity - pb.properties.storage * pb.cell_pressure
+        self.accepted.accept(porosity, pb.properties.aperture.copy())
         return None
 
     def solve(self, t: float, dt: float | None) -> StepResult:
@@ -111,8 +110,9 @@ class FlowSimulation:
         pb = self.problem
         if self.varying and dt is not None:
             pb.set_properties(flow_properties(self.scene, self.fm, pb.geom, t))
-        self._step = None if dt is None else TimeStep(dt, self.phi_prev, self.phi_fixed,
-                                                      self.aperture_prev)
+        self._step = None if dt is None else TimeStep(dt, self.accepted.porosity,
+                                                      self._porosity_fixed,
+                                                      self.accepted.aperture)
         try:
             with self.timer.phase("flow_solve"):
                 pb.solve(t, self._step)
@@ -131,16 +131,15 @@ class FlowSimulation:
 
     def accept(self, t: float) -> None:
         """The solved porosity and aperture become those of the previous step."""
-        pb = self.problem
-        if self._step is not None:
-            self.phi_prev = pb.porosity(self._step)
-            self.aperture_prev = pb.properties.aperture.copy()
-        self._accepted_p = pb.p.copy()
+        pb, step = self.problem, self._step
+        if step is None:
+            self.accepted.accept(None, None)
+        else:
+            self.accepted.accept(pb.porosity(step), pb.properties.aperture.copy())
 
     def reject(self) -> None:
         """Back to the pressures of the last accepted step (the initial guess)."""
-        self.problem.p[:] = self._accepted_p
-        self.problem._write_guess()
+        self.accepted.reject()
 
     # -- output --------------------------------------------------------------------------
     def open_output(self, outdir: Path, resume_until: float | None = None) -> None:
@@ -156,58 +155,27 @@ class FlowSimulation:
             with self.timer.phase("flow_output"):
                 self.writer.write(t, compute_fluxes(self.problem))
 
-    def finish(self, summary: dict) -> None:
+    def finish(self, summary: dict, records: list[dict]) -> None:
         """Probes at the last solved time and the flow report (``summary["flow"]``)."""
-        if self.outdir is not None and self.records and self.records[-1].get("reason", "") \
+        if self.outdir is not None and records and records[-1].get("reason", "") \
                 .startswith("CONVERGED"):
             with self.timer.phase("flow_output"):
                 write_probes(self.scene, self.problem, self.outdir)
-        summary.setdefault("flow", {}).update(flow_report(self.problem, self.records))
+        summary.setdefault("flow", {}).update(flow_report(self.problem, records))
 
     # -- checkpoint ----------------------------------------------------------------------
     def state(self) -> dict[str, Keyed]:
         """Pressures, porosity and aperture of the accepted step."""
-        return flow_state(self.problem, self.phi_prev, self.aperture_prev)
+        return self.accepted.checkpoint()
 
     def restore(self, arrays: dict, t: float) -> None:
         """Continue after the step ending at ``t`` from checkpoint arrays."""
         self.initialize()
-        restore_pressure(self.problem, arrays)
-        self.phi_prev = arrays["porosity"][_cells(self.fm)]
-        self.aperture_prev = arrays["aperture"][self.fm.fractures.index]
-        self._accepted_p = self.problem.p.copy()
+        self.accepted.restore(arrays)
 
     def close(self) -> None:
         """Free the PETSc objects."""
         self.problem.destroy()
-
-
-def _cells(fm) -> np.ndarray:
-    """Input (gmsh) numbers of the owned cells."""
-    n = fm.msh.topology.index_map(2).size_local
-    return np.asarray(fm.msh.topology.original_cell_index, dtype=np.int64)[:n]
-
-
-def flow_state(problem: DarcyProblem, porosity, aperture) -> dict[str, Keyed]:
-    """Cell and fracture pressures, porosity and aperture keyed by input cell / global face."""
-    fm = problem.fm
-    cells, faces = _cells(fm), fm.fractures.index.astype(np.int64)
-    out = {"p_cell": (cells, problem.cell_pressure), "p_fracture": (faces,
-                                                                    problem.fracture_pressure)}
-    if porosity is not None:
-        out["porosity"] = (cells, porosity)
-    if aperture is not None:
-        out["aperture"] = (faces, aperture)
-    return out
-
-
-def restore_pressure(problem: DarcyProblem, arrays: dict) -> None:
-    """Cell and fracture pressures from a checkpoint (other unknowns keep their guess)."""
-    fm, d = problem.fm, problem.dofs
-    problem.p[d.cell] = arrays["p_cell"][_cells(fm)]
-    if len(d.fracture):
-        problem.p[d.fracture] = arrays["p_fracture"][fm.fractures.index]
-    problem._write_guess()
 
 
 def flow_report(problem: DarcyProblem, records: list) -> dict[str, Any]:
@@ -230,26 +198,3 @@ def flow_report(problem: DarcyProblem, records: list) -> dict[str, Any]:
             "boundary_fluxes": last["boundary_fluxes"],
         }
     return out
-
-
-def run_flow(ctx) -> None:
-    """Run a flow-only scene without checkpoints (collective; studies and tests).
-
-    Args:
-        ctx: Run context with ``scene``, ``fm``, ``outdir`` (existing directory), ``timer``
-            and ``summary`` (filled here: ``summary["flow"]``).
-
-    Raises:
-        poromech.errors.SolverError: A linear solve did not converge (the summary then holds
-            the solves done so far).
-    """
-    sim = FlowSimulation(ctx.scene, ctx.fm, ctx.timer)
-    ctx.summary.setdefault("flow", {})["solves"] = sim.records
-    try:
-        sim.initialize()
-        sim.open_output(Path(ctx.outdir))
-        run_steps(sim, ctx.scene, ctx.comm, sim.records, lambda k, t: None,
-                  write_initial=sim.has_initial_output)
-    finally:
-        sim.finish(ctx.summary)
-        sim.close()

@@ -382,6 +382,14 @@ class DarcyProblem:
         self._write_guess()
         self._guess_set = True
 
+    def set_unknowns(self, p: Array) -> None:
+        """Set every local unknown (Pa) and make it the initial guess of the next solve.
+
+        Collective. Restores an accepted state (a rejected step, a checkpoint).
+        """
+        self.p[:] = p
+        self._write_guess()
+
     def _write_guess(self) -> None:
         """Put the current pressures into the solution vector (the next initial guess)."""
         values = self.p.copy()

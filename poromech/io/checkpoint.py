@@ -27,14 +27,18 @@ from dolfinx import fem
 from mpi4py import MPI
 
 from poromech.io.xdmf import atomic_h5, gather_rows, root_write
+from poromech.mesh.entities import input_cells
 from poromech.mesh.fractured import FracturedMesh
+from poromech.physics import Keyed
 
 __all__ = [
     "CHECKPOINT",
+    "Keyed",
     "cell_dof_rows",
     "face_dof_rows",
     "load_checkpoint",
     "save_checkpoint",
+    "scalar_row",
     "set_cell_dof_rows",
     "set_face_dof_rows",
 ]
@@ -42,7 +46,6 @@ __all__ = [
 #: File name of the checkpoint in the output directory.
 CHECKPOINT = "checkpoint.h5"
 
-Keyed = tuple[npt.NDArray[np.int64], npt.NDArray]
 
 
 def save_checkpoint(comm: MPI.Comm, outdir: Path, meta: dict, arrays: dict[str, Keyed]) -> None:
@@ -68,43 +71,46 @@ def load_checkpoint(comm: MPI.Comm, outdir: Path) -> tuple[dict, dict[str, np.nd
     return comm.bcast(data, root=0)
 
 
-def _original_cells(fm: FracturedMesh, owned: bool) -> npt.NDArray[np.int64]:
-    imap = fm.msh.topology.index_map(fm.msh.topology.dim)
-    n = imap.size_local + (0 if owned else imap.num_ghosts)
-    return np.asarray(fm.msh.topology.original_cell_index, dtype=np.int64)[:n]
+def scalar_row(comm: MPI.Comm, value: float) -> Keyed:
+    """A scalar as a keyed checkpoint array (one row, given by rank 0)."""
+    ids = np.zeros(1 if comm.rank == 0 else 0, dtype=np.int64)
+    return ids, np.full(len(ids), float(value))
 
 
-def cell_dof_rows(fm: FracturedMesh, f: fem.Function) -> Keyed:
-    """The dof values of every owned cell of a function on ``fm.msh``, keyed by input cell."""
-    keys = _original_cells(fm, owned=True)
-    bs = f.function_space.dofmap.index_map_bs
-    dofs = f.function_space.dofmap.list[: len(keys)]
-    return keys, f.x.array.reshape(-1, bs)[dofs].reshape(len(keys), -1)
+def cell_dof_rows(fm: FracturedMesh, V: fem.FunctionSpace, values: npt.NDArray) -> Keyed:
+    """Dof values of every owned cell, keyed by input cell.
+
+    ``values`` are in the layout of a function of ``V`` (a space on ``fm.msh``).
+    """
+    keys = input_cells(fm.msh)
+    bs = V.dofmap.index_map_bs
+    dofs = V.dofmap.list[: len(keys)]
+    return keys, values.reshape(-1, bs)[dofs].reshape(len(keys), -1)
 
 
 def set_cell_dof_rows(fm: FracturedMesh, f: fem.Function, rows: np.ndarray) -> None:
     """Inverse of :func:`cell_dof_rows`, from the full array, on owned and ghost cells."""
-    keys = _original_cells(fm, owned=False)
+    keys = input_cells(fm.msh, owned=False)
     bs = f.function_space.dofmap.index_map_bs
     dofs = f.function_space.dofmap.list[: len(keys)]
     f.x.array.reshape(-1, bs)[dofs] = rows[keys].reshape(len(keys), dofs.shape[1], bs)
     f.x.scatter_forward()
 
 
-def _face_dofs(fm: FracturedMesh, f: fem.Function, emap) -> npt.NDArray[np.int32]:
+def _face_dofs(fm: FracturedMesh, V: fem.FunctionSpace, emap) -> npt.NDArray[np.int32]:
     cells = emap.sub_topology_to_topology(fm.fractures.facets, inverse=True)
-    return f.function_space.dofmap.list[cells, 0]
+    return V.dofmap.list[cells, 0]
 
 
-def face_dof_rows(fm: FracturedMesh, f: fem.Function, emap) -> Keyed:
-    """Values of a DG0 function on the fracture submesh, keyed by global fracture face."""
-    bs = f.function_space.dofmap.index_map_bs
-    values = f.x.array.reshape(-1, bs)[_face_dofs(fm, f, emap)]
-    return fm.fractures.index.astype(np.int64), values
+def face_dof_rows(fm: FracturedMesh, V: fem.FunctionSpace, values: npt.NDArray, emap) -> Keyed:
+    """Values of a DG0 function of ``V`` (on the fracture submesh) keyed by global fracture face."""
+    bs = V.dofmap.index_map_bs
+    return fm.fractures.index.astype(np.int64), values.reshape(-1, bs)[_face_dofs(fm, V, emap)]
 
 
 def set_face_dof_rows(fm: FracturedMesh, f: fem.Function, emap, rows: np.ndarray) -> None:
     """Inverse of :func:`face_dof_rows` (owned faces, then a ghost update)."""
     bs = f.function_space.dofmap.index_map_bs
-    f.x.array.reshape(-1, bs)[_face_dofs(fm, f, emap)] = rows[fm.fractures.index].reshape(-1, bs)
+    dofs = _face_dofs(fm, f.function_space, emap)
+    f.x.array.reshape(-1, bs)[dofs] = rows[fm.fractures.index].reshape(-1, bs)
     f.x.scatter_forward()

@@ -373,11 +373,22 @@ class CondensedContact:
             G=G, friction=m.scene.contact.friction)
 
     # -- solves -----------------------------------------------------------------------------
-    def _gather(self, v: PETSc.Vec) -> npt.NDArray | None:
+    def gather(self, v: PETSc.Vec) -> npt.NDArray | None:
+        """The face rows (``λ`` and ``a``) of a block vector, on rank 0 (collective).
+
+        Positions :attr:`lam_pos` and :attr:`avg_pos` select the multipliers and averages.
+        """
         self.scatter.scatter(v, self._seq, PETSc.InsertMode.INSERT, PETSc.ScatterMode.FORWARD)
         return self._seq.getArray().copy() if self.comm.rank == 0 else None
 
-    def _law(self) -> tuple[float, float]:
+    def scatter_faces(self, values: npt.NDArray | None, v: PETSc.Vec) -> None:
+        """Set the face rows of block vector ``v`` from ``values`` given on rank 0 (collective)."""
+        if self.comm.rank == 0:
+            self._seq.getArray()[:] = values
+        self.scatter.scatter(self._seq, v, PETSc.InsertMode.INSERT, PETSc.ScatterMode.REVERSE)
+
+    def law(self) -> tuple[float, float]:
+        """The friction coefficient and the Tresca bound of the contact law (0 when unused)."""
         c = self.model.params
         coefficient = float(c.friction_coefficient.value) if c.friction_coefficient is not None \
             else 0.0
@@ -403,7 +414,7 @@ class CondensedContact:
         self._rhs.pointwiseMult(self._rhs, self._keep)  # no change of λ
         self.ksp.solve(self._rhs, y)
         x.axpy(-1.0, y)  # the linear rows hold at the current λ
-        values = self._gather(x)
+        values = self.gather(x)
         out, step = None, None
         if self.comm.rank == 0:
             out = self._face_newton(values, tol, min_steps)
@@ -412,11 +423,25 @@ class CondensedContact:
         if not out["converged"]:
             start.copy(x)
             return out
-        # the displacement and averages for the new λ: J₀ y = (0, |σ| δλ, 0)
+        x.axpy(1.0, self._response(step, y))
+        return out
+
+    def _response(self, step: npt.NDArray | None, y: PETSc.Vec) -> PETSc.Vec:
+        """The change of the unknowns for a change ``step`` of ``λ``: ``J₀ y = (0, |σ| δλ, 0)``."""
         v = self._step_vector(step)
         v.pointwiseMult(v, self._lambda_diagonal)
         self.ksp.solve(v, y)
-        x.axpy(1.0, y)
+        return y
+
+    def response(self, step: npt.NDArray | None) -> npt.NDArray | None:
+        """The face rows of the response to a change ``step`` of ``λ`` (given on rank 0).
+
+        Collective; returned on rank 0. The averages' rows are ``G step`` (the exact affine map
+        the face Newton uses), the multipliers' rows ``step``.
+        """
+        y = self._y.duplicate()
+        out = self.gather(self._response(step, y))
+        y.destroy()
         return out
 
     def _step_vector(self, step: npt.NDArray | None) -> PETSc.Vec:
@@ -433,7 +458,7 @@ class CondensedContact:
         """Semi-smooth Newton on the face equations (rank 0); ``step`` is ``δλ``."""
         p = self.problem
         lam0, a1 = values[self.lam_pos], values[self.avg_pos]
-        coefficient, bound = self._law()
+        coefficient, bound = self.law()
         dl = np.zeros_like(lam0)
 
         def residual(d, jacobian=False):

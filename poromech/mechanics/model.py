@@ -29,7 +29,7 @@ from poromech.mesh.fractured import FRACTURE_TAG, FracturedMesh, cracked_space, 
 from poromech.scene.expressions import Expression
 from poromech.scene.schema import Contact, Scene
 
-__all__ = ["FACE_FIELDS", "MechanicsModel", "SLIP_TOLERANCE", "STATE_NAMES"]
+__all__ = ["FACE_FIELDS", "MechanicsModel", "PressureCoupling", "SLIP_TOLERANCE", "STATE_NAMES"]
 
 log = logging.getLogger("poromech")
 
@@ -65,6 +65,22 @@ class _Updater:
         self.target.x.scatter_forward()
 
 
+@dataclass(frozen=True)
+class PressureCoupling:
+    """How fluid pressures enter the mechanics of a coupled (poromechanics) run.
+
+    The model then has a matrix pressure ``p_m`` (DG0 on the cells, when ``biot > 0``) in the
+    total stress ``σ(u) - b p_m I`` and a fracture pressure ``p_f`` (DG0 on the fracture faces)
+    on both fracture faces, both set by :meth:`MechanicsModel.set_pressures`, and it computes the
+    cell means of ``div u`` (:meth:`MechanicsModel.cell_divergence`) for the porosity.
+
+    Attributes:
+        biot: Biot coefficient ``b``.
+    """
+
+    biot: float
+
+
 def _facet_submesh(fm: FracturedMesh):
     """The fracture faces as a 1D mesh, with its entity map to the parent facets (collective)."""
     sub, emap, _, _ = dolfinx.mesh.create_submesh(fm.msh, 1, fm.fracture_facets_all)
@@ -78,6 +94,7 @@ class MechanicsModel:
     Attributes:
         fm: The fractured mesh.
         scene: The scene.
+        pressures: The pressure coupling of a poromechanics run, or None.
         V: Displacement space (duplicated nodes across fractures).
         u: Displacement (m).
         unknowns: ``[u, λ?, averages?]`` in block order.
@@ -89,6 +106,7 @@ class MechanicsModel:
 
     fm: FracturedMesh
     scene: Scene
+    pressures: PressureCoupling | None = None
     V: fem.FunctionSpace = field(init=False)
     u: fem.Function = field(init=False)
     unknowns: list[fem.Function] = field(init=False)
@@ -177,6 +195,7 @@ class MechanicsModel:
             friction_coefficient=fc,
             slip_bound=s,
             quadrature_degree=cforms.quadrature_degree(self.scene.degree),
+            dim=msh.topology.dim,
         )
 
     def _check_symmetric_nitsche(self, young: npt.NDArray[np.float64]) -> None:
@@ -210,9 +229,9 @@ class MechanicsModel:
         """
         self.p_m = self.p_f = None
         self.biot = 0.0
-        if self.scene.physics != "poromechanics":
+        if self.pressures is None:
             return
-        self.biot = self.scene.material.biot
+        self.biot = self.pressures.biot
         if self.biot > 0:
             self.p_m = fem.Function(Q0, name="p_m")
         if self.has_fractures:
@@ -295,9 +314,8 @@ class MechanicsModel:
                     self._updaters.append(upd)
                 pf = pf_fun("+")
         n = ufl.FacetNormal(self.fm.msh)("+")
-        young = self.young if isinstance(self.young, fem.Function) else self.young
         return FractureKinematics(
-            n=n, young=young, poisson=self.poisson, side=self.scene.contact.traction_side,
+            n=n, young=self.young, poisson=self.poisson, side=self.scene.contact.traction_side,
             fracture_pressure=pf, slip_reference=self.u_prev, matrix_pressure=self.p_m,
             biot=fem.Constant(self.fm.msh, self.biot),
         )
@@ -373,8 +391,7 @@ class MechanicsModel:
         jac = [[_derivative(Fi, uj) for uj in self.unknowns] for Fi in residuals]
         em = self.entity_maps or None
         self.F = [fem.form(Fi, entity_maps=em) for Fi in residuals]
-        self._div_form = self._divergence_form(dx) if self.scene.physics == "poromechanics" \
-            else None
+        self._div_form = self._divergence_form(dx) if self.pressures is not None else None
         self.J = [[fem.form(a, entity_maps=em) if a is not None else None for a in row]
                   for row in jac]
         self._build_diagnostics()
@@ -432,6 +449,20 @@ class MechanicsModel:
         f.x.scatter_reverse(dolfinx.la.InsertMode.add)
         return f.x.array[: f.function_space.dofmap.index_map.size_local].copy()
 
+    def collocate(self, expr) -> npt.NDArray[np.float64]:
+        """A scalar UFL expression at the contact points of the owned fracture faces (collective).
+
+        The points are those of :meth:`active_set` (the Gauss points of the contact quadrature
+        for pointwise ``nitsche``, one per face otherwise); the values come as
+        ``(owned submesh cells, points per face)``. For diagnostics and tests.
+        """
+        r = ufl.TestFunction(self._points.function_space)("+")
+        dG = cforms.contact_measure(self.params, self.dG)
+        form = fem.form(expr * r * dG, entity_maps=self.entity_maps or None)
+        values = self._owned_moments(form) / self._point_weights
+        n = self.submesh.topology.index_map(self.submesh.topology.dim).size_local
+        return values[self._points.function_space.dofmap.list[:n]]
+
     def _divergence_form(self, dx):
         """``∫_K div(u) dx`` per cell (DG0 test function) and the cell areas."""
         Q0 = fem.functionspace(self.fm.msh, ("DG", 0))
@@ -449,48 +480,15 @@ class MechanicsModel:
         return vals[dofs] / self._cell_area[dofs]
 
     # -- time and outputs -------------------------------------------------------------------
-    #: Start each step from the last accepted increment extrapolated (see :meth:`set_time`).
-    extrapolate = True
-
     def set_time(self, t: float) -> None:
-        """Re-evaluate every time-dependent input at ``t`` and predict the unknowns there.
-
-        When the unknowns are those of the last accepted step ``tₙ`` and the step before was
-        accepted too, they are extrapolated linearly (collective):
-        ``x ← xₙ + (t - tₙ)/(tₙ - tₙ₋₁) (xₙ - xₙ₋₁)`` for ``u``, ``λ`` and the face averages.
-        Points that slid in the last step then start the step sliding at the same rate, instead
-        of all sticking (zero slip increment) in the first Newton iteration. Zero unknowns at the
-        first call count as the state at ``t = 0``; unknowns that are not the last accepted ones
-        (a restored checkpoint, a second call in the same step) are kept, and the history
-        restarts after a restore.
-        """
+        """Re-evaluate every time-dependent input at ``t`` (loads, boundary data, moduli)."""
         for upd in self._updaters:
             upd(t)
-        comm = self.fm.comm
-        if not hasattr(self, "_history"):
-            zero = comm.allreduce(all(not f.x.array.any() for f in self.unknowns), op=MPI.LAND)
-            self._history = [(0.0, [f.x.array.copy() for f in self.unknowns])] if zero else []
-        self._t = t
-        if self._history:
-            last = self._history[-1][1]
-            same = all(np.array_equal(f.x.array, a)
-                       for f, a in zip(self.unknowns, last, strict=True))
-            if not comm.allreduce(same, op=MPI.LAND):
-                self._history = [] if t > self._history[-1][0] else self._history
-                return
-        if self.extrapolate and len(self._history) == 2 and t > self._history[1][0]:
-            (t0, x0), (t1, x1) = self._history
-            r = (t - t1) / (t1 - t0)
-            for f, a0, a1 in zip(self.unknowns, x0, x1, strict=True):
-                f.x.array[:] = a1 + r * (a1 - a0)
 
     def accept_step(self) -> None:
-        """Accept the solved state: slip reference of the next step and predictor point."""
+        """The solved displacement becomes the reference of the next slip increment."""
         if self.u_prev is not None:
             self.u_prev.x.array[:] = self.u.x.array
-        t = getattr(self, "_t", 0.0)
-        history = [h for h in getattr(self, "_history", []) if h[0] < t][-1:]
-        self._history = history + [(t, [f.x.array.copy() for f in self.unknowns])]
 
     def active_set(self) -> npt.NDArray[np.int8]:
         """Active-set code at every contact point of the owned fracture faces (collective).
@@ -506,20 +504,23 @@ class MechanicsModel:
                               posinf=-1.0, neginf=-1.0)
         return np.rint(codes).astype(np.int8)
 
-    def face_fields(self) -> npt.NDArray[np.float64]:
-        """Owned fracture face values of :data:`FACE_FIELDS`, ``(faces, fields)`` (collective)."""
+    def face_fields(self) -> dict[str, npt.NDArray[np.float64]]:
+        """Owned fracture face values of :data:`FACE_FIELDS`, by name (collective).
+
+        Face means over the contact quadrature, in the order of ``fm.fractures``.
+        """
         if self.faces is None:
-            return np.empty((0, len(FACE_FIELDS)))
+            return {name: np.empty(0) for name in FACE_FIELDS}
         self.faces.x.array[:] = 0.0
         fem.assemble_vector(self.faces.x.array, self._faces_form)
         self.faces.x.scatter_reverse(dolfinx.la.InsertMode.add)
         self.faces.x.scatter_forward()
         sub_cells = self.emap.sub_topology_to_topology(self.fm.fractures.facets, inverse=True)
-        vals = self.faces.x.array.reshape(-1, len(FACE_FIELDS))
-        return vals[sub_cells]
+        vals = self.faces.x.array.reshape(-1, len(FACE_FIELDS))[sub_cells]
+        return {name: vals[:, i] for i, name in enumerate(FACE_FIELDS)}
 
     @staticmethod
-    def states(values: npt.NDArray[np.float64]) -> npt.NDArray[np.int8]:
+    def states(values: dict[str, npt.NDArray[np.float64]]) -> npt.NDArray[np.int8]:
         """Contact state per face from the written face means of :meth:`face_fields`.
 
         0 ``open``: ``traction_n = 0`` (no compressive contact traction anywhere on the face);
@@ -528,7 +529,7 @@ class MechanicsModel:
         the face mean of the bound (``F |traction_n|`` for Coulomb, ``s`` for Tresca, 0 without
         friction: a closed frictionless face slips).
         """
-        tn, tt, bound = values[:, 2], values[:, 3], values[:, 4]
+        tn, tt, bound = values["traction_n"], values["traction_t"], values["friction_bound"]
         sliding = np.abs(tt) >= (1.0 - SLIP_TOLERANCE) * bound
         return np.where(tn < 0.0, np.where(sliding, 2, 1), 0).astype(np.int8)
 

@@ -28,14 +28,13 @@ for residuals that are piecewise affine in the unknowns (2D contact with Coulomb
 
 ``docs/mechanics/robustness.md`` compares it with PETSc's ``basic`` and ``bt`` searches.
 
-The Jacobian of the 2D problems is piecewise constant in the contact states, so the factorization
-is reused whenever the assembled Jacobian is bitwise unchanged (``reuse_jacobian``); when only a
-few contact points switched state since the last factorization, GMRES preconditioned by that
-stale factorization usually gives the direction in a few iterations (``stale_factorization``,
-options prefix ``mech_stale_``), and the matrix is refactorized if it does not, or once the
-stale solves since the last factorization have cost as many iterations as a factorization.
-The choice depends on the contact states, the system size and iteration counts, never on
-measured times, so a run is reproducible. A residual evaluated during the line search is not
+The direction is solved by a linear strategy (:mod:`poromech.mechanics.linear`): by default a
+factorization reused while the assembled Jacobian is bitwise unchanged (``reuse_jacobian``),
+with GMRES preconditioned by a stale factorization after few contact-state changes
+(``stale_factorization``, options prefix ``mech_stale_``); a Krylov method when the options ask
+for one. When the contact law says that its Jacobian is a function of the contact states only
+(2D friction: piecewise affine), an unchanged active set skips the assembly of the Jacobian
+altogether (``states_determine_jacobian``). A residual evaluated during the line search is not
 assembled again for the accepted iterate.
 """
 
@@ -55,7 +54,8 @@ from dolfinx.fem.petsc import assemble_residual, assign, create_matrix, create_v
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from poromech.petsc_options import PrefixedOptions
+from poromech.mechanics.linear import LinearStrategy, linear_strategy
+from poromech.petsc_options import PrefixedOptions, reason_name
 
 __all__ = ["ConvergenceError", "NewtonRecord", "SemiSmoothNewton", "DEFAULT_OPTIONS"]
 
@@ -74,45 +74,6 @@ DEFAULT_OPTIONS: dict[str, object] = {
     "pc_type": "lu",
     "pc_factor_mat_solver_type": "mumps",
 }
-
-#: GMRES iterations allowed with a stale factorization before refactorizing: about what one
-#: refactorization costs (measured on the six-fracture scene with P2 Nitsche on 2 ranks, one
-#: factorization took the time of 7.5, 10 and 12 stale GMRES iterations at 12.5k, 49k and 192k
-#: unknowns), so that a failed attempt at most doubles the cost of the iteration.
-STALE_MAX_IT = 12
-#: Relative true residual of a stale GMRES solve. Tighter is not reachable reliably: with a
-#: stale factorization the residual stagnates between 1e-8 and 1e-9 of ``|F|`` on that scene.
-#: A direction this accurate lands within 1e-7 ``|F|`` of the root of its affine piece, so it
-#: costs at most one more (cheap) Newton iteration.
-STALE_RTOL = 1e-7
-#: Stale GMRES is tried when at most this many contact points changed state since the last
-#: factorization: each changed point changes the Jacobian by a rank of one or two, and GMRES
-#: converges in about that rank plus one iteration.
-STALE_MAX_CHANGES = 8
-#: Stale GMRES iterations allowed in total between two factorizations. Their sum is what the
-#: stale factorization has cost so far; once it reaches the price of one factorization
-#: (:data:`STALE_MAX_IT` iterations), the next Jacobian that is not the factorized one is
-#: factorized (the rent-or-buy rule: at most twice the cost of the best choice in hindsight).
-#: Without it a Jacobian that changed by a few points stayed stale for whole time steps: the
-#: quiet steps of the coupled six-fracture scene at m = 2 made five GMRES solves of 5-9
-#: iterations each, where one factorization and four reuses cost half as much (linear solves
-#: of the run 118-125 s without the budget, 97-110 s with it).
-STALE_BUDGET = STALE_MAX_IT
-#: Stale GMRES is tried only on systems with at least this many unknowns. Below, a
-#: factorization is so cheap that GMRES iterations with it cost more (coupled six-fracture
-#: scene, P2 Nitsche, contact mechanics seconds for the 20 steps with / without stale solves:
-#: 7.9 / 4.4 at 12.5k unknowns on 1 rank, 30.6 / 28.5 at 49k on 2 ranks; 150 with them at 192k
-#: on 2 ranks, where 171 was spent with 3.3 times as many factorizations).
-STALE_MIN_UNKNOWNS = 100_000
-
-
-def _is_direct(ksp: PETSc.KSP) -> bool:
-    """Whether the KSP applies a factorization (preonly + LU/Cholesky)."""
-    return ksp.getType() == PETSc.KSP.Type.PREONLY and ksp.getPC().getType() in ("lu", "cholesky")
-
-
-_REASONS = {v: k for k, v in vars(PETSc.SNES.ConvergedReason).items() if not k.startswith("_")}
-
 
 class ConvergenceError(RuntimeError):
     """A nonlinear solve that did not converge; carries its :class:`NewtonRecord`."""
@@ -164,7 +125,7 @@ class LineSearchParameters:
 
 
 class SemiSmoothNewton:
-    """Owns the SNES, matrices and vectors of one nonlinear block problem.
+    """Owns the SNES, matrices and vectors of one nonlinear block problem (collective).
 
     Args:
         F: Compiled residual blocks.
@@ -174,17 +135,29 @@ class SemiSmoothNewton:
         prefix: PETSc options prefix (ending in ``_``).
         options: Options merged over :data:`DEFAULT_OPTIONS` (scene values).
         line_search: ``"contact"`` or a PETSc line search type.
-        reuse_jacobian: Reuse the factorization while the Jacobian is bitwise unchanged.
-        stale_factorization: When at most :data:`STALE_MAX_CHANGES` contact points changed
-            state since the last factorization, first try GMRES preconditioned by that (stale)
-            factorization; refactor if it does not converge within :data:`STALE_MAX_IT`
-            iterations, or once the stale iterations since the last factorization reach
-            :attr:`stale_budget` (PETSc options prefix ``<prefix>stale_``).
+        reuse_jacobian: Reuse the factorization while the Jacobian is bitwise unchanged, and
+            skip the assembly of a Jacobian the contact states determine.
+        stale_factorization: When at most a few contact points changed state since the last
+            factorization, first try GMRES preconditioned by that (stale) factorization
+            (:class:`~poromech.mechanics.linear.DirectSolver`, prefix ``<prefix>stale_``).
         states: Callable returning the active-set codes of the owned contact points at the
             current unknowns, or None: the record's ``active_set_changes`` counts the codes that
             change from one iterate to the next. Pass
             :meth:`~poromech.mechanics.model.MechanicsModel.active_set` (quadrature points for
             pointwise Nitsche), so that a count of 0 means an unchanged Jacobian.
+        states_determine_jacobian: The Jacobian is a function of the contact states only (the
+            contact law's :attr:`~poromech.forms.contact.ContactParameters.piecewise_affine`,
+            with coefficients constant in time): an unchanged active set then reuses the
+            assembled Jacobian.
+
+    Attributes:
+        A: The Jacobian matrix.
+        x: The unknowns as one block vector.
+        linear: The :class:`~poromech.mechanics.linear.LinearStrategy` of the direction.
+        condensed: The :class:`~poromech.mechanics.condensed.CondensedContact` that computes
+            each solve's start (:meth:`attach_condensation`), or None.
+        reference_norm: Largest initial residual norm so far (the relative tolerance's base).
+        record: The :class:`NewtonRecord` of the last solve.
     """
 
     def __init__(
@@ -199,6 +172,7 @@ class SemiSmoothNewton:
         reuse_jacobian: bool = True,
         stale_factorization: bool = True,
         states: Callable[[], np.ndarray] | None = None,
+        states_determine_jacobian: bool = False,
     ):
         self.F, self.J, self.u, self.bcs = list(F), [list(r) for r in J], list(unknowns), list(bcs)
         self.comm = self.u[0].function_space.mesh.comm
@@ -206,42 +180,22 @@ class SemiSmoothNewton:
         self.b = create_vector([f.function_space for f in self.u], kind="mpi")
         self.x = create_vector([f.function_space for f in self.u], kind="mpi")
         self._blocks = self.b.getAttr("_blocks")
-        self._trial = self.x.duplicate()
-        self._trial_f = self.b.duplicate()
         self._cache_x = self.x.duplicate()
         self._cache_f = self.b.duplicate()
         self._cache_valid = False
-        self._values = None  # Jacobian values at the last factorization
-        # merit scaling of the line search, displacement-only systems (_Step._set_scale)
-        self._scale = self.b.duplicate() if len(self.u) == 1 else None
-        self._scaled = self.b.duplicate() if len(self.u) == 1 else None
         self.line_search = line_search
         self.ls = LineSearchParameters()
         self.reuse_jacobian = reuse_jacobian
-        self.stale_factorization = stale_factorization
-        self._stale_ksp = None
-        self._stale_spent = 0  # stale GMRES iterations since the last factorization
-        #: Smallest system on which stale GMRES is tried (:data:`STALE_MIN_UNKNOWNS`).
-        self.stale_min_unknowns = STALE_MIN_UNKNOWNS
-        #: Stale GMRES iterations allowed between two factorizations (:data:`STALE_BUDGET`).
-        self.stale_budget = STALE_BUDGET
         self.states = states
+        self.states_determine_jacobian = states_determine_jacobian
         self.reference_norm = 0.0
-        #: Newton steps taken even when the initial residual already meets the tolerance (a
-        #: response to tiny changes of the data, for finite-difference Jacobians of the coupling).
-        self.min_iterations = 0
-        self._forced_reason = None
-        self._last_states = None
+        self._min_iterations = 0
+        self._last_states = None  # active set of the current iterate
         self._jacobian_states = None  # active set of the assembled Jacobian
-        self._factor_states = None  # active set of the factorized Jacobian
-        self._assembled = True  # the matrix was assembled since the last factorization
-        self.states_determine_jacobian = False
-        #: A :class:`~poromech.mechanics.condensed.CondensedContact` that computes each solve's
-        #: start
-        #: (set by the owner), or None.
         self.condensed = None
         self.prefix = prefix
-        self.snes = self._create_snes(prefix, options or {})
+        self.snes, self.linear = self._create_snes(prefix, options or {}, stale_factorization)
+        self._step = self.snes.getPythonContext() if self._is_python() else None
         self.record = NewtonRecord()
 
     @property
@@ -249,8 +203,16 @@ class SemiSmoothNewton:
         """This solver's options without prefix (defaults, formulation, scene)."""
         return dict(self._options.options)
 
+    def attach_condensation(self, condensed) -> None:
+        """Start every solve from the condensed solution of ``condensed`` (``mixed``)."""
+        self.condensed = condensed
+
     # -- PETSc objects ----------------------------------------------------------------------
-    def _create_snes(self, prefix: str, options: dict) -> PETSc.SNES:
+    def _is_python(self) -> bool:
+        return self.snes.getType() == PETSc.SNES.Type.PYTHON
+
+    def _create_snes(self, prefix: str, options: dict,
+                     stale: bool) -> tuple[PETSc.SNES, LinearStrategy]:
         snes = PETSc.SNES().create(self.comm)
         snes.setOptionsPrefix(prefix)
         merged = {**DEFAULT_OPTIONS, **options}
@@ -261,23 +223,24 @@ class SemiSmoothNewton:
             snes.setFunction(self._residual, self.b)
             snes.setJacobian(self._jacobian, self.A, self.A)
             snes.setFromOptions()
-            if self.stale_factorization:
-                self._stale_ksp = self._create_stale_ksp(prefix, snes.getKSP().getPC())
+            linear = linear_strategy(snes.getKSP(), self.A, prefix, reuse=self.reuse_jacobian,
+                                     stale=stale)
         if snes.getType() == PETSc.SNES.Type.PYTHON:
-            snes.setPythonContext(_Step(self))
+            snes.setPythonContext(_NewtonStep(self))
         snes.setConvergenceTest(self._converged)
         snes.setMonitor(self._monitor)
         self.A.setOptionsPrefix(f"{prefix}A_")
-        return snes
+        return snes, linear
 
     def destroy(self) -> None:
         """Free PETSc objects."""
         if self.condensed is not None:
             self.condensed.destroy()
-        for obj in (self.snes, self.A, self.b, self.x, self._trial, self._trial_f,
-                    self._cache_x, self._cache_f, self._stale_ksp, self._scale, self._scaled):
-            if obj is not None:
-                obj.destroy()
+        if self._step is not None:
+            self._step.free()
+        self.linear.destroy()
+        for obj in (self.snes, self.A, self.b, self.x, self._cache_x, self._cache_f):
+            obj.destroy()
 
     # -- callbacks --------------------------------------------------------------------------
     def _residual(self, snes, x, b) -> None:
@@ -300,12 +263,12 @@ class SemiSmoothNewton:
     def _jacobian(self, snes, x, A, P) -> None:
         """Assemble the Jacobian, unless the active set is that of the assembled one.
 
-        With :attr:`states_determine_jacobian` (set by the owner when no coefficient of the
-        Jacobian changes in time), the Jacobian is a function of the contact branches only, so
-        an unchanged active set (the codes of ``states``) means an unchanged matrix: this saves
-        the assembly in the many solves of a coupled run that start in the last active set.
-        Without :attr:`reuse_jacobian` the matrix is always assembled, so that the direct
-        solver refactorizes it (PETSc keeps the factors of a matrix that was not modified).
+        With :attr:`states_determine_jacobian` (the contact law's Jacobian is a function of its
+        branches only, and no coefficient of it changes in time) an unchanged active set (the
+        codes of ``states``) means an unchanged matrix: this saves the assembly in the many
+        solves of a coupled run that start in the last active set. Without
+        :attr:`reuse_jacobian` the matrix is always assembled, so that the direct solver
+        refactorizes it (PETSc keeps the factors of a matrix that was not modified).
         """
         if (self.reuse_jacobian and self.states_determine_jacobian
                 and self._same_states(self._jacobian_states)):
@@ -317,8 +280,8 @@ class SemiSmoothNewton:
         A.zeroEntries()
         dolfinx.fem.petsc.assemble_matrix(A, self.J, self.bcs, diag=1.0)
         A.assemble()
-        self._assembled = True
         self._jacobian_states = None if self._last_states is None else self._last_states.copy()
+        self.linear.assembled(self._jacobian_states)
         self.record.time_assembly += time.perf_counter() - t0
 
     def _same_states(self, reference) -> bool:
@@ -327,65 +290,23 @@ class SemiSmoothNewton:
                 and np.array_equal(reference, self._last_states))
         return bool(self.comm.allreduce(same, op=MPI.LAND))
 
-    def jacobian_unchanged(self) -> bool:
-        """True when the Jacobian equals the one last factorized (collective).
-
-        Without an assembly since that factorization (the Jacobian was kept for an unchanged
-        active set) it is the same matrix; otherwise the values are compared.
-        """
-        if not self._assembled:  # the same on every rank: assemblies are collective
-            return self._values is not None
-        values = self.A.getValuesCSR()[2]
-        same = self._values is not None and np.array_equal(values, self._values)
-        return self.comm.allreduce(bool(same), op=MPI.LAND)
-
-    def factorized(self) -> None:
-        """Remember the values and the active set of the Jacobian just factorized."""
-        self._stale_spent = 0
-        self._values = self.A.getValuesCSR()[2].copy() if self.reuse_jacobian else None
-        self._factor_states = self._jacobian_states
-        self._assembled = False
-
-    def changes_since_factorization(self) -> int | None:
-        """Contact points whose state differs from that of the factorized Jacobian (collective).
-
-        Counted over all ranks; None when unknown (no states, or not recorded).
-        """
-        known = self._factor_states is not None and self._last_states is not None
-        if not self.comm.allreduce(known, op=MPI.LAND):
-            return None
-        return int(self.comm.allreduce(
-            int(np.count_nonzero(self._last_states != self._factor_states))))
-
-    def _create_stale_ksp(self, prefix: str, factor_pc: PETSc.PC) -> PETSc.KSP:
-        """GMRES on the Jacobian preconditioned by the (stale) factorization of ``factor_pc``.
-
-        Options prefix ``<prefix>stale_`` (``mech_stale_ksp_max_it``, ...).
-        """
-        ksp = PETSc.KSP().create(self.comm)
-        ksp.setOptionsPrefix(f"{prefix}stale_")
-        ksp.setType(PETSc.KSP.Type.GMRES)
-        ksp.setTolerances(rtol=STALE_RTOL, atol=0.0, max_it=STALE_MAX_IT)
-        # right preconditioning: the test is on the true residual of the current Jacobian
-        ksp.setPCSide(PETSc.PC.Side.RIGHT)
-        ksp.setNormType(PETSc.KSP.NormType.UNPRECONDITIONED)
-        ksp.getPC().setType(PETSc.PC.Type.PYTHON)
-        ksp.getPC().setPythonContext(_StalePC(factor_pc))
-        ksp.setOperators(self.A, self.A)
-        ksp.setFromOptions()
-        return ksp
+    @property
+    def active_set(self) -> np.ndarray | None:
+        """Active-set codes of the current iterate (None without states)."""
+        return self._last_states
 
     def _converged(self, snes, it, norms):
         xnorm, ynorm, fnorm = norms
         rtol, atol, stol, max_it = snes.getTolerances()
-        if self._forced_reason is not None:
-            return self._forced_reason
+        forced = None if self._step is None else self._step.forced_reason
+        if forced is not None:
+            return forced
         if it == 0:
             self.reference_norm = max(self.reference_norm, fnorm)
         R = PETSc.SNES.ConvergedReason
         if not np.isfinite(fnorm):
             return R.DIVERGED_FUNCTION_NANORINF
-        if it < self.min_iterations:
+        if it < self._min_iterations:
             return R.ITERATING
         if fnorm <= atol:
             return R.CONVERGED_FNORM_ABS
@@ -418,8 +339,13 @@ class SemiSmoothNewton:
             log.debug("%sNewton %d: |F| = %.3e%s", self.prefix, it, fnorm, extra)
 
     # -- solve ------------------------------------------------------------------------------
-    def solve(self) -> NewtonRecord:
+    def solve(self, min_iterations: int = 0) -> NewtonRecord:
         """Solve from the current unknowns; update them in place (collective).
+
+        Args:
+            min_iterations: Newton steps taken even when the initial residual already meets
+                the tolerance (a response to tiny changes of the data, for finite-difference
+                Jacobians of the coupling).
 
         Returns:
             The record of this solve; ``record.converged`` tells whether it converged.
@@ -427,28 +353,28 @@ class SemiSmoothNewton:
         self.record = NewtonRecord()
         self._last_states = None
         self._cache_valid = False
-        self._watchdog = 0
-        self._forced_reason = None
+        if self._step is not None:
+            self._step.reset()
         assign(self.u, self.x)
-        min_iterations = self.min_iterations
-        if self.condensed is not None and self._condensed_start():
-            self.min_iterations = 0  # the face Newton has already responded to the data
+        self._min_iterations = min_iterations
+        if self.condensed is not None and self._condensed_start(min_iterations):
+            self._min_iterations = 0  # the face Newton has already responded to the data
         try:
             with self._options:  # the factorization reads its options (mat_mumps_*) at set-up
                 self.snes.solve(None, self.x)
         finally:
-            self.min_iterations = min_iterations
+            self._min_iterations = 0
         dolfinx.la.petsc._ghost_update(self.x, PETSc.InsertMode.INSERT, PETSc.ScatterMode.FORWARD)
         assign(self.x, self.u)
         r = self.record
         reason = self.snes.getConvergedReason()
-        r.reason = _REASONS.get(reason, str(reason))
+        r.reason = reason_name(reason)
         r.converged = reason > 0
         r.iterations = self.snes.getIterationNumber()
         r.linear_iterations += self.snes.getLinearSolveIterations()
         return r
 
-    def _condensed_start(self) -> bool:
+    def _condensed_start(self, min_iterations: int) -> bool:
         """Start from the condensed solution (:mod:`~poromech.mechanics.condensed`); True if it did.
 
         The residual at the current unknowns sets the reference norm exactly as the first
@@ -465,8 +391,7 @@ class SemiSmoothNewton:
         self.reference_norm = max(self.reference_norm, f0)
         t1 = time.perf_counter()
         rtol = self.snes.getTolerances()[0]
-        out = self.condensed.solve(self.x, self.b, rtol * self.reference_norm,
-                                   self.min_iterations)
+        out = self.condensed.solve(self.x, self.b, rtol * self.reference_norm, min_iterations)
         r = self.record
         r.face_iterations += out["iterations"]
         if not out["converged"]:
@@ -478,32 +403,44 @@ class SemiSmoothNewton:
         return bool(out["converged"])
 
 
-class _StalePC:
-    """Python PC context applying an existing (stale) factorization."""
+class _NewtonStep:
+    """Python context of the SNES: the Newton direction and the line search.
 
-    def __init__(self, pc: PETSc.PC):
-        self.pc = pc
-
-    def apply(self, pc, x, y) -> None:
-        self.pc.apply(x, y)
-
-
-class _Step:
-    """Python context of the SNES: Newton direction, Jacobian reuse and the line search."""
+    Owns the line search's state: the watchdog count of non-decreasing steps and the reason it
+    forces on the SNES (a failed linear solve, an exhausted watchdog, only non-finite trials).
+    """
 
     def __init__(self, solver: SemiSmoothNewton):
         self.s = solver
-        self.scale, self._scaled = solver._scale, solver._scaled
+        self._trial = solver.x.duplicate()
+        self._trial_f = solver.b.duplicate()
+        # merit scaling of the line search, displacement-only systems (_set_scale)
+        single = len(solver.u) == 1
+        self.scale = solver.b.duplicate() if single else None
+        self._scaled = solver.b.duplicate() if single else None
+        self.watchdog = 0
+        self.forced_reason = None
+
+    def reset(self) -> None:
+        """Before a solve: no watchdog count, no forced reason."""
+        self.watchdog = 0
+        self.forced_reason = None
+
+    def free(self) -> None:
+        """Free the work vectors (``destroy`` is PETSc's hook on this context: not used)."""
+        for v in (self._trial, self._trial_f, self.scale, self._scaled):
+            if v is not None:
+                v.destroy()
 
     def step(self, snes, X, F, Y) -> None:
         s = self.s
         snes.computeJacobian(X, s.A, s.A)
         t0 = time.perf_counter()
-        solved = self._solve_linear(snes.getKSP(), F, Y)
+        solved = s.linear.solve(F, Y, s.record, s.active_set)
         s.record.time_linear += time.perf_counter() - t0
         if not solved:
-            s._forced_reason = PETSc.SNES.ConvergedReason.DIVERGED_LINEAR_SOLVE
-            s._values = None
+            self.forced_reason = PETSc.SNES.ConvergedReason.DIVERGED_LINEAR_SOLVE
+            s.linear.forget()
             Y.set(0.0)
             return
         alpha = self._line_search(snes, X, F, Y)
@@ -511,47 +448,10 @@ class _Step:
         if alpha != 1.0:
             Y.scale(alpha)
 
-    def _solve_linear(self, ksp: PETSc.KSP, F: PETSc.Vec, Y: PETSc.Vec) -> bool:
-        """Newton direction ``J Y = F`` with the cheapest exact-enough solve.
-
-        Reuse the factorization when ``J`` is unchanged; after few contact-state changes try
-        GMRES preconditioned by the stale factorization, while the stale iterations since the
-        factorization stay below :attr:`stale_budget`; otherwise refactorize. The choice depends
-        on the active sets, the system size and iteration counts (the same on every rank and in
-        every run).
-        """
-        s = self.s
-        has_factor = s._values is not None
-        if has_factor and s.jacobian_unchanged():
-            ksp.getPC().setReusePreconditioner(True)
-            ksp.solve(F, Y)
-            return ksp.getConvergedReason() > 0
-        few = False
-        if (s.stale_factorization and has_factor and _is_direct(ksp)
-                and s.A.getSize()[0] >= s.stale_min_unknowns and s._stale_spent < s.stale_budget):
-            changes = s.changes_since_factorization()
-            few = changes is not None and changes <= STALE_MAX_CHANGES
-        if few:
-            ksp.getPC().setReusePreconditioner(True)  # keep the old factors when applied
-            stale = s._stale_ksp
-            stale.solve(F, Y)
-            s._stale_spent += stale.getIterationNumber()
-            s.record.linear_iterations += stale.getIterationNumber()
-            if stale.getConvergedReason() > 0:
-                s.record.stale_solves += 1
-                return True
-        ksp.setOperators(s.A, s.A)
-        ksp.getPC().setReusePreconditioner(False)
-        ksp.solve(F, Y)
-        s.record.factorizations += 1
-        s.factorized()
-        return ksp.getConvergedReason() > 0
-
     def _norm_at(self, snes, X, Y, alpha: float) -> float:
-        s = self.s
-        s._trial.waxpy(-alpha, Y, X)
-        snes.computeFunction(s._trial, s._trial_f)
-        return self._merit(s._trial_f)
+        self._trial.waxpy(-alpha, Y, X)
+        snes.computeFunction(self._trial, self._trial_f)
+        return self._merit(self._trial_f)
 
     def _merit(self, F: PETSc.Vec) -> float:
         """``‖D⁻¹F‖`` (displacement-only systems, :meth:`_set_scale`) or ``‖F‖``."""
@@ -588,21 +488,21 @@ class _Step:
         The full step is taken when it satisfies Armijo's condition; otherwise the best step of
         a search of ``‖F(x - αY)‖`` on ``(0, 1)`` (:meth:`_minimize`), when it satisfies it.
         """
-        s, p = self.s, self.s.ls
+        p = self.s.ls
         f1 = self._norm_at(snes, X, Y, 1.0)
         if np.isfinite(f1) and f1 <= (1 - p.armijo) * f0:
-            s._watchdog = 0
+            self.watchdog = 0
             return 1.0, f1
         fa, alpha = self._minimize(snes, X, Y, f1)
         if fa <= (1 - p.armijo * alpha) * f0:
-            s._watchdog = 0
+            self.watchdog = 0
             return alpha, fa
-        s._watchdog += 1
+        self.watchdog += 1
         if not np.isfinite(fa):  # every trial residual is NaN or infinite
-            s._forced_reason = PETSc.SNES.ConvergedReason.DIVERGED_FUNCTION_NANORINF
+            self.forced_reason = PETSc.SNES.ConvergedReason.DIVERGED_FUNCTION_NANORINF
             return 0.0, f0
-        if s._watchdog > p.max_watchdog:
-            s._forced_reason = PETSc.SNES.ConvergedReason.DIVERGED_LINE_SEARCH
+        if self.watchdog > p.max_watchdog:
+            self.forced_reason = PETSc.SNES.ConvergedReason.DIVERGED_LINE_SEARCH
             return 0.0, f0
         return alpha, fa
 

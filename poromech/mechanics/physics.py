@@ -1,8 +1,10 @@
-"""The contact-mechanics physics behind the time loop (:mod:`poromech.stepping`).
+"""The contact-mechanics physics behind the time loop (``physics: mechanics``).
 
-:class:`MechanicsSimulation` owns the :class:`~poromech.mechanics.model.MechanicsModel`, its
-semi-smooth Newton and its writers; it is used on its own (``physics: mechanics``) and inside the
-coupled poromechanics solver.
+:class:`MechanicsPhysics` owns the :class:`~poromech.mechanics.model.MechanicsModel`, its
+semi-smooth Newton, the step predictor and the writers of the displacement and fracture fields.
+It is run on its own, and inside the coupled poromechanics physics, which hands it the pressure
+coupling (:class:`~poromech.mechanics.model.PressureCoupling`) and calls :meth:`begin_step` and
+:meth:`solve_contact` from its fixed point.
 """
 
 from __future__ import annotations
@@ -18,17 +20,22 @@ from petsc4py import PETSc
 from poromech.io.checkpoint import (
     cell_dof_rows,
     face_dof_rows,
+    scalar_row,
     set_cell_dof_rows,
     set_face_dof_rows,
 )
 from poromech.io.output import FractureTable, displacement_mesh, fracture_mesh, owned_blocks
 from poromech.io.xdmf import XDMFSeries
+from poromech.mechanics.linear import is_direct
+from poromech.mechanics.model import MechanicsModel, PressureCoupling
+from poromech.mechanics.newton import NewtonRecord, SemiSmoothNewton
+from poromech.mechanics.predictor import StepPredictor
 from poromech.mesh.fractured import FracturedMesh
+from poromech.physics import Keyed, StepResult
 from poromech.scene.schema import Scene
-from poromech.stepping import StepResult, run_steps
 from poromech.timing import Timer
 
-__all__ = ["MechanicsSimulation", "formulation_options"]
+__all__ = ["MechanicsPhysics", "formulation_options"]
 
 log = logging.getLogger("poromech")
 
@@ -37,20 +44,6 @@ WRITTEN_FACE_FIELDS = ("jump_n", "jump_t", "traction_n", "traction_t")
 #: Face fields written to ``fractures.xdmf`` only: the fractions of the face in contact and
 #: sliding (they differ from 0 and 1 only where pointwise Nitsche switches inside a face).
 XDMF_ONLY_FACE_FIELDS = ("contact_fraction", "slip_fraction")
-
-
-class _Values:
-    """A stand-in for a function with other values (same space), for checkpoint rows."""
-
-    def __init__(self, f, values):
-        self.function_space, self.name = f.function_space, f.name
-        self.x = type("X", (), {"array": values})()
-
-
-def scalar_row(comm, value: float):
-    """A scalar as a keyed checkpoint array (one row, given by rank 0)."""
-    ids = np.zeros(1 if comm.rank == 0 else 0, dtype=np.int64)
-    return ids, np.full(len(ids), float(value))
 
 
 def formulation_options(formulation: str) -> dict:
@@ -64,36 +57,40 @@ def formulation_options(formulation: str) -> dict:
     return {"mat_mumps_icntl_24": 1} if formulation == "mixed" else {}
 
 
-class MechanicsSimulation:
-    """The contact problem of a scene as a :class:`~poromech.stepping.Physics` (collective).
+class MechanicsPhysics:
+    """The contact problem of a scene as a :class:`~poromech.physics.Physics` (collective).
 
     Args:
         scene: The scene.
         fm: The fractured mesh.
         timer: Wall-time accounting.
+        pressures: How matrix and fracture pressures enter (coupled runs), or None.
 
     Attributes:
         model: The :class:`~poromech.mechanics.model.MechanicsModel` (holds the current unknowns).
         solver: The :class:`~poromech.mechanics.newton.SemiSmoothNewton`.
-        records: One JSON-ready record per completed step (filled by :meth:`run`).
+        predictor: The :class:`~poromech.mechanics.predictor.StepPredictor` of each step's start.
     """
 
     counters = ("iterations", "face_iterations", "linear_iterations", "factorizations",
                 "stale_solves", "jacobian_reuses", "residual_evaluations", "time_assembly",
                 "time_linear")
+    records_section = None
 
-    def __init__(self, scene: Scene, fm: FracturedMesh, timer: Timer):
-        from poromech.mechanics.model import MechanicsModel
-        from poromech.mechanics.newton import SemiSmoothNewton
-
+    def __init__(self, scene: Scene, fm: FracturedMesh, timer: Timer,
+                 pressures: PressureCoupling | None = None):
         self.scene, self.timer, self.fm = scene, timer, fm
+        self.writes_initial_state = False
         singular = scene.contact.formulation == "mixed" and scene.degree == 1
         if singular:
             log.warning("mixed with P1 displacements is not inf-sup stable: multipliers are not "
                         "unique and Newton may not converge; prefer degree 2 or stabilized_mixed")
+        material = scene.material
         with timer.phase("setup"):
-            self.model = model = MechanicsModel(fm, scene)
-            states = model.active_set if model.faces else None
+            self.model = model = MechanicsModel(fm, scene, pressures)
+            # the Jacobian is a function of the contact branches when the contact law is
+            # piecewise affine and no other coefficient of it (E, ν) changes in time
+            constant = not (material.young.depends_on_time or material.poisson.depends_on_time)
             self.solver = SemiSmoothNewton(
                 model.F, model.J, model.unknowns, model.bcs, prefix="mech_",
                 options={**formulation_options(model.params.formulation), **scene.solver.petsc},
@@ -101,16 +98,13 @@ class MechanicsSimulation:
                 reuse_jacobian=scene.solver.reuse_jacobian,
                 # a stale factorization of a singular Jacobian is no preconditioner
                 stale_factorization=scene.solver.stale_factorization and not singular,
-                states=states,
+                states=model.active_set if model.faces is not None else None,
+                states_determine_jacobian=constant and model.params.piecewise_affine,
             )
-        # only Young's modulus and Poisson's ratio enter the Jacobian besides the contact
-        # branches: while they are constant in time, an unchanged active set reuses it
-        material = scene.material
-        self.solver.states_determine_jacobian = not (
-            material.young.depends_on_time or material.poisson.depends_on_time)
-        self.solver.condensed = self._condensed()
-        self.records: list[dict] = []
-        self.has_initial_output = False
+        condensed = self._condensed()
+        if condensed is not None:
+            self.solver.attach_condensation(condensed)
+        self.predictor = StepPredictor(model.unknowns, fm.comm)
         self._saved = [f.x.array.copy() for f in model.unknowns]
         self._series: dict[str, XDMFSeries] = {}
         self._table: FractureTable | None = None
@@ -118,12 +112,11 @@ class MechanicsSimulation:
     def _condensed(self):
         """A :class:`~poromech.mechanics.condensed.CondensedContact` where it applies, else None."""
         from poromech.mechanics.condensed import MAX_FACE_UNKNOWNS, CondensedContact, applicable
-        from poromech.mechanics.newton import _is_direct
 
         m, scene, ksp = self.model, self.scene, self.solver.snes.getKSP()
         if not (scene.solver.condensation and m.lam is not None
                 and applicable(m.params.formulation, scene.degree, scene.contact.friction)
-                and self.solver.states_determine_jacobian and _is_direct(ksp)
+                and self.solver.states_determine_jacobian and is_direct(ksp)
                 and ksp.getPC().getFactorSolverType() == "mumps"):
             return None
         V = m.lam.function_space
@@ -160,17 +153,33 @@ class MechanicsSimulation:
             out["warnings"] = list(self.model.warnings)
         return out
 
+    # -- the contact solve, also called by the coupled physics --------------------------------
+    def begin_step(self, t: float) -> None:
+        """Inputs at time ``t`` and the predicted unknowns (the start of the step's Newton)."""
+        self.model.set_time(t)
+        self.predictor.predict(t)
+
+    def solve_contact(self, min_iterations: int = 0) -> NewtonRecord:
+        """The semi-smooth Newton from the current unknowns (collective); its record.
+
+        Args:
+            min_iterations: Newton steps taken even when the initial residual already meets the
+                tolerance (finite-difference Jacobians of the coupling).
+        """
+        rec = self.solver.solve(min_iterations)
+        self.timer.add("assembly", rec.time_assembly)
+        self.timer.add("linear_solve", rec.time_linear)
+        return rec
+
     # -- Physics interface -----------------------------------------------------------------
     def initialize(self) -> dict | None:
         """Nothing to solve: the displacement starts at zero."""
         return None
 
     def solve(self, t: float, dt: float | None) -> StepResult:
-        """Semi-smooth Newton at time ``t`` from the current unknowns."""
-        self.model.set_time(t)
-        rec = self.solver.solve()
-        self.timer.add("assembly", rec.time_assembly)
-        self.timer.add("linear_solve", rec.time_linear)
+        """Semi-smooth Newton at time ``t`` from the predicted unknowns."""
+        self.begin_step(t)
+        rec = self.solve_contact()
         message = ""
         if not rec.converged:
             message = (f"Newton did not converge at t = {t:g} s: {rec.reason} after "
@@ -181,6 +190,7 @@ class MechanicsSimulation:
     def accept(self, t: float) -> None:
         """The solved displacement becomes the reference of the next slip increment."""
         self.model.accept_step()
+        self.predictor.accept()
         for saved, f in zip(self._saved, self.model.unknowns, strict=True):
             saved[:] = f.x.array
 
@@ -227,12 +237,9 @@ class MechanicsSimulation:
                                             resume_until)
 
     def face_output(self) -> dict[str, np.ndarray]:
-        """The written face fields and states of the owned fracture faces."""
-        from poromech.mechanics.model import FACE_FIELDS
-
+        """The written face fields and states of the owned fracture faces (collective)."""
         values = self.model.face_fields()
-        out = {name: values[:, FACE_FIELDS.index(name)]
-               for name in (*WRITTEN_FACE_FIELDS, *XDMF_ONLY_FACE_FIELDS)}
+        out = {name: values[name] for name in (*WRITTEN_FACE_FIELDS, *XDMF_ONLY_FACE_FIELDS)}
         out["state"] = self.model.states(values)
         return out
 
@@ -251,35 +258,34 @@ class MechanicsSimulation:
                                       if k not in XDMF_ONLY_FACE_FIELDS})
 
     # -- checkpoint ----------------------------------------------------------------------
-    def _rows(self, f, values=None):
-        """A function's values (or ``values`` in its layout), keyed independently of the partition.
+    def _rows(self, f, values: np.ndarray) -> Keyed:
+        """Values in the layout of function ``f``, keyed independently of the partition.
 
         By input cell (displacements) or by fracture face (multipliers, averages).
         """
         m = self.model
-        if values is not None:
-            f = _Values(f, values)
-        if f.function_space.mesh is m.submesh and m.submesh is not None:
-            return face_dof_rows(self.fm, f, m.emap)
-        return cell_dof_rows(self.fm, f)
+        V = f.function_space
+        if m.submesh is not None and V.mesh is m.submesh:
+            return face_dof_rows(self.fm, V, values, m.emap)
+        return cell_dof_rows(self.fm, V, values)
 
     def _set_rows(self, f, rows) -> None:
         m = self.model
-        if f.function_space.mesh is m.submesh and m.submesh is not None:
+        if m.submesh is not None and f.function_space.mesh is m.submesh:
             set_face_dof_rows(self.fm, f, m.emap, rows)
         else:
             set_cell_dof_rows(self.fm, f, rows)
 
-    def state(self) -> dict:
+    def state(self) -> dict[str, Keyed]:
         """Unknowns, slip reference and the predictor's previous step, partition-independent."""
         m = self.model
-        out = {f.name: self._rows(f) for f in m.unknowns}
+        out = {f.name: self._rows(f, f.x.array) for f in m.unknowns}
         if m.u_prev is not None:
-            out["u_prev"] = cell_dof_rows(self.fm, m.u_prev)
+            out["u_prev"] = self._rows(m.u_prev, m.u_prev.x.array)
         out["reference_norm"] = scalar_row(self.fm.comm, self.solver.reference_norm)
-        history = getattr(m, "_history", [])
-        if len(history) == 2:
-            t0, arrays = history[0]
+        previous = self.predictor.previous
+        if previous is not None:
+            t0, arrays = previous
             for f, a in zip(m.unknowns, arrays, strict=True):
                 out[f"previous_{f.name}"] = self._rows(f, a)
             out["previous_time"] = scalar_row(self.fm.comm, t0)
@@ -288,37 +294,25 @@ class MechanicsSimulation:
     def restore(self, arrays: dict, t: float) -> None:
         """Set the unknowns of the step ending at ``t`` from checkpoint arrays; accept them."""
         m = self.model
-        previous = []
+        previous = None
         if "previous_time" in arrays:
             for f in m.unknowns:
                 self._set_rows(f, arrays[f"previous_{f.name}"])
-                previous.append(f.x.array.copy())
+            previous = (float(arrays["previous_time"][0]), [f.x.array.copy() for f in m.unknowns])
         for f in m.unknowns:
             self._set_rows(f, arrays[f.name])
         if m.u_prev is not None:
             set_cell_dof_rows(self.fm, m.u_prev, arrays["u_prev"])
         self.solver.reference_norm = float(arrays["reference_norm"][0])
-        m._t = t
-        m._history = [(float(arrays["previous_time"][0]), previous)] if previous else []
-        m._history.append((t, [f.x.array.copy() for f in m.unknowns]))
+        self.predictor.restore(t, previous)
         for saved, f in zip(self._saved, m.unknowns, strict=True):
             saved[:] = f.x.array
 
-    def finish(self, summary: dict) -> None:
+    def finish(self, summary: dict, records: list[dict]) -> None:
         """The work of the condensed solve, if any."""
         if self.solver.condensed is not None:
             summary["condensed"] = self.solver.condensed.describe()
 
-    def run(self) -> list[dict]:
-        """Solve every time step of the scene without writing anything (for studies, tests).
-
-        Raises:
-            SolverError: A step failed after the allowed step cuts.
-        """
-        run_steps(self, self.scene, self.fm.comm, self.records, lambda k, t: None)
-        return self.records
-
     def close(self) -> None:
         """Free the PETSc objects."""
         self.solver.destroy()
-

@@ -20,6 +20,7 @@ __all__ = [
     "CellGeometry",
     "cell_geometry",
     "facet_vertices",
+    "input_cells",
     "owned_cell_values",
     "vertex_coordinates",
 ]
@@ -113,3 +114,13 @@ def owned_cell_values(f: dolfinx.fem.Function) -> npt.NDArray[np.float64]:
     bs = V.dofmap.index_map_bs
     values = f.x.array.reshape(-1, bs)[V.dofmap.list[:nc, 0]]
     return values[:, 0] if bs == 1 else values
+
+
+def input_cells(msh: dolfinx.mesh.Mesh, owned: bool = True) -> npt.NDArray[np.int64]:
+    """Input (gmsh) numbers of the owned cells (and the ghost cells after them if not ``owned``).
+
+    The partition-independent key of cell data in checkpoints and output files.
+    """
+    imap = msh.topology.index_map(msh.topology.dim)
+    n = imap.size_local + (0 if owned else imap.num_ghosts)
+    return np.asarray(msh.topology.original_cell_index, dtype=np.int64)[:n]

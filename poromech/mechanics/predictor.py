@@ -1,0 +1,81 @@
+"""The start of each step's Newton: the last accepted unknowns, extrapolated linearly in time."""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+from dolfinx import fem
+from mpi4py import MPI
+
+__all__ = ["StepPredictor"]
+
+History = list[tuple[float, list[npt.NDArray[np.float64]]]]
+
+
+class StepPredictor:
+    """Accepted unknowns of the last two steps and their linear extrapolation (collective).
+
+    When the unknowns are those of the last accepted step ``tₙ`` and the step before was accepted
+    too, :meth:`predict` extrapolates them linearly to the new time ``t``:
+    ``x ← xₙ + (t - tₙ)/(tₙ - tₙ₋₁) (xₙ - xₙ₋₁)`` (``u``, ``λ`` and the face averages). Points
+    that slid in the last step then start the step sliding at the same rate, instead of all
+    sticking (zero slip increment) in the first Newton iteration. Zero unknowns at the first
+    call count as the state at ``t = 0``; unknowns that are not the last accepted ones (a
+    restored checkpoint, a second call in the same step) are kept, and the history restarts.
+
+    Args:
+        unknowns: The functions in block order.
+        comm: Communicator.
+        extrapolate: Extrapolate (else only keep the history).
+    """
+
+    def __init__(self, unknowns: list[fem.Function], comm: MPI.Comm, extrapolate: bool = True):
+        self.unknowns, self.comm, self.extrapolate = unknowns, comm, extrapolate
+        self.time = 0.0  # time of the step being solved (that of the last predict)
+        self._history: History | None = None  # None until the first predict or accept
+
+    def _copy(self) -> list[npt.NDArray[np.float64]]:
+        return [f.x.array.copy() for f in self.unknowns]
+
+    def predict(self, t: float) -> None:
+        """Set the unknowns to the extrapolation at ``t`` where that applies (see the class)."""
+        if self._history is None:
+            zero = self.comm.allreduce(all(not f.x.array.any() for f in self.unknowns),
+                                       op=MPI.LAND)
+            self._history = [(0.0, self._copy())] if zero else []
+        self.time = t
+        if self._history:
+            last = self._history[-1][1]
+            same = all(np.array_equal(f.x.array, a)
+                       for f, a in zip(self.unknowns, last, strict=True))
+            if not self.comm.allreduce(same, op=MPI.LAND):
+                self._history = [] if t > self._history[-1][0] else self._history
+                return
+        if self.extrapolate and len(self._history) == 2 and t > self._history[1][0]:
+            (t0, x0), (t1, x1) = self._history
+            r = (t - t1) / (t1 - t0)
+            for f, a0, a1 in zip(self.unknowns, x0, x1, strict=True):
+                f.x.array[:] = a1 + r * (a1 - a0)
+
+    def accept(self) -> None:
+        """The current unknowns are the accepted state at the time of the last prediction."""
+        t = self.time
+        history = [h for h in (self._history or []) if h[0] < t][-1:]
+        self._history = history + [(t, self._copy())]
+
+    @property
+    def previous(self) -> tuple[float, list[npt.NDArray[np.float64]]] | None:
+        """The accepted step before the last one, ``(time, arrays)``, if known."""
+        history = self._history or []
+        return history[0] if len(history) == 2 else None
+
+    def restore(self, t: float, previous: tuple[float, list] | None) -> None:
+        """After a restart: the current unknowns are accepted at ``t``, ``previous`` before."""
+        self.time = t
+        self._history = [previous] if previous else []
+        self._history.append((t, self._copy()))
+
+    @property
+    def history(self) -> History:
+        """The accepted ``(time, arrays)`` kept (at most two)."""
+        return list(self._history or [])
