@@ -17,7 +17,9 @@ mixed (3/4)        ``-(λ_n + β_n π⁰[[u]]_n)``            ``-(λ_τ + β_τ 
 with ``S = -F [P_n]_R-`` (Coulomb), ``S = s`` (Tresca), and no tangential terms at all when
 frictionless. The face averages ``π⁰`` are extra facewise-constant unknowns ("averages") tied to
 ``u`` by linear equations, which keeps the Jacobian exact. Multipliers ``λ = -T`` live in the
-same DG0 space on the fracture faces, in the ``(n⁺, τ)`` basis.
+same DG0 space on the fracture faces, in the ``(n⁺, τ_1, …, τ_{d-1})`` basis. Tangential
+quantities (``P_τ``, ``λ_τ``, ``[[u]]_τ``) are scalars in 2D and 2-vectors in the fracture's
+tangent frame in 3D, where ``[·]_S`` projects on the disc of radius ``S``.
 
 Every fracture integral uses the quadrature of :func:`quadrature_degree` (``2k`` for
 displacements of degree ``k``: ``k + 1`` Gauss points per face). For pointwise ``nitsche`` these
@@ -38,9 +40,11 @@ from poromech.forms.fracture import (
     ball_branch,
     ball_projection,
     contact_branch,
+    magnitude,
     negative_part,
     normal_jump,
     slip,
+    tangential_product,
 )
 
 __all__ = [
@@ -138,19 +142,28 @@ def contact_measure(p: ContactParameters, dG):
 
 
 def multiplier_size(p: ContactParameters) -> int:
-    """Number of multiplier components per fracture face (0 for Nitsche-type methods)."""
+    """Number of multiplier components per fracture face (0 for Nitsche-type methods).
+
+    ``λ_n``, and with friction the ``d - 1`` components of ``λ_τ``.
+    """
     if p.formulation in ("mixed", "stabilized_mixed"):
-        return 2 if p.tangential else 1
+        return p.dim if p.tangential else 1
     return 0
+
+
+def _tangential_names(name: str, p: ContactParameters) -> tuple[str, ...]:
+    """``name`` in 2D, ``name1, name2`` (its components in the tangent frame) in 3D."""
+    return (name,) if p.dim == 2 else tuple(f"{name}{i + 1}" for i in range(p.dim - 1))
 
 
 def average_names(p: ContactParameters) -> tuple[str, ...]:
     """Names of the face-average unknowns a formulation needs, in storage order."""
+    jt, tt = _tangential_names("jump_t", p), _tangential_names("traction_t", p)
     if p.formulation == "mixed":
-        return ("jump_n", "jump_t") if p.tangential else ("jump_n",)
+        return ("jump_n", *jt) if p.tangential else ("jump_n",)
     if p.formulation in ("stabilized_mixed", "mean_nitsche"):
         names = ("traction_n", "jump_n")
-        return names + ("traction_t", "jump_t") if p.tangential else names
+        return (*names, *tt, *jt) if p.tangential else names
     return ()
 
 
@@ -161,6 +174,23 @@ def _components(f, k: int) -> list:
 
 def _named(f, names: tuple[str, ...]) -> dict:
     return dict(zip(names, _components(f, len(names)), strict=True))
+
+
+def _tangential_part(values: list, p: ContactParameters):
+    """The tangential quantity of its components: a scalar in 2D, a vector in 3D."""
+    return values[0] if len(values) == 1 else ufl.as_vector(values)
+
+
+def _average(a: dict, name: str, p: ContactParameters):
+    """Face average ``name`` (``jump_t``, ``traction_t`` are tangential quantities)."""
+    if name in a:
+        return a[name]
+    return _tangential_part([a[k] for k in _tangential_names(name, p)], p)
+
+
+def _multiplier_t(lm: list, p: ContactParameters):
+    """``λ_τ`` of the multiplier components ``[λ_n, λ_τ...]``."""
+    return _tangential_part(lm[1:], p)
 
 
 def slip_threshold(p: ContactParameters, pn):
@@ -174,16 +204,18 @@ def complementarity_arguments(fk: FractureKinematics, p: ContactParameters, u, l
     """``(P_n, P_τ, S)`` of the table above; ``P_τ`` and ``S`` are None when frictionless."""
     if p.formulation == "nitsche":
         pn = fk.normal_traction(u) - p.beta_n * normal_jump(u, fk.n)
-        pt = fk.tangential_traction(u) - p.beta_t * slip(u, fk.n, fk.slip_reference)
+        pt = fk.tangential_traction(u) - p.beta_t * slip(u, fk.frame, fk.slip_reference)
     elif p.formulation in ("mean_nitsche", "stabilized_mixed"):
         a = _named(avg, average_names(p))
         pn = a["traction_n"] - p.beta_n * a["jump_n"]
-        pt = a["traction_t"] - p.beta_t * a["jump_t"] if p.tangential else None
+        pt = (_average(a, "traction_t", p) - p.beta_t * _average(a, "jump_t", p)
+              if p.tangential else None)
     elif p.formulation == "mixed":
         a = _named(avg, average_names(p))
         lm = _components(lam, multiplier_size(p))
         pn = -(lm[0] + p.beta_n * a["jump_n"])
-        pt = -(lm[1] + p.beta_t * a["jump_t"]) if p.tangential else None
+        pt = -(_multiplier_t(lm, p) + p.beta_t * _average(a, "jump_t", p)) \
+            if p.tangential else None
     else:
         raise ValueError(f"formulation '{p.formulation}' imposes no contact conditions")
     if not p.tangential:
@@ -199,7 +231,7 @@ def displacement_residual(fk: FractureKinematics, p: ContactParameters, u, v, dG
     Returns None when there is nothing to integrate on the fractures.
     """
     jn_v = normal_jump(v, fk.n)
-    jt_v = slip(v, fk.n)
+    jt_v = slip(v, fk.frame)
     terms = []
     if fk.fracture_pressure is not None:
         terms.append(fk.fracture_pressure * jn_v)
@@ -209,27 +241,37 @@ def displacement_residual(fk: FractureKinematics, p: ContactParameters, u, v, dG
             tn, tt = fk.normal_traction(u), fk.tangential_traction(u) if p.tangential else None
         else:
             a = _named(avg, average_names(p))
-            tn, tt = a["traction_n"], a.get("traction_t")
+            tn = a["traction_n"]
+            tt = _average(a, "traction_t", p) if p.tangential else None
         th = p.theta
         tn_v = fk.normal_variation(v)
         terms.append(-th / p.beta_n * tn * tn_v)
         terms.append(negative_part(pn) * (th * tn_v - p.beta_n * jn_v) / p.beta_n)  # (7)/(8)
-        if p.tangential:
+        if p.tangential and p.dim == 2:
             tt_v = fk.tangential_variation(v)
             terms.append(-th / p.beta_t * tt * tt_v)
             terms.append(ball_projection(pt, s) * (th * tt_v - p.beta_t * jt_v) / p.beta_t)
+        elif p.tangential:
+            tt_v = fk.tangential_variation(v)
+            terms.append(-th / p.beta_t * ufl.inner(tt, tt_v))
+            terms.append(ufl.inner(ball_projection(pt, s), th * tt_v - p.beta_t * jt_v)
+                         / p.beta_t)
     elif p.formulation in ("mixed", "stabilized_mixed"):
         lm = _components(lam, multiplier_size(p))
         terms.append(lm[0] * jn_v)  # ∫ λ·[[v]], eq. (3)/(5)
         if p.tangential:
-            terms.append(lm[1] * jt_v)
+            terms.append(tangential_product(_multiplier_t(lm, p), jt_v))
         if p.formulation == "stabilized_mixed" and p.theta != 0:
             a = _named(avg, average_names(p))
             terms.append(-p.theta / p.beta_n * (lm[0] + a["traction_n"]) * fk.normal_variation(v))
-            if p.tangential:
+            if p.tangential and p.dim == 2:
                 terms.append(
                     -p.theta / p.beta_t * (lm[1] + a["traction_t"]) * fk.tangential_variation(v)
                 )
+            elif p.tangential:
+                terms.append(-p.theta / p.beta_t * ufl.inner(
+                    _multiplier_t(lm, p) + _average(a, "traction_t", p),
+                    fk.tangential_variation(v)))
     if not terms:
         return None
     return sum(terms[1:], terms[0]) * contact_measure(p, dG)
@@ -242,7 +284,8 @@ def multiplier_residual(fk: FractureKinematics, p: ContactParameters, u, lam, mu
     lm, mm = _components(lam, k), _components(mu, k)
     form = (lm[0] + negative_part(pn)) * mm[0]
     if p.tangential:
-        form += (lm[1] + ball_projection(pt, s)) * mm[1]
+        form += tangential_product(_multiplier_t(lm, p) + ball_projection(pt, s),
+                                   _multiplier_t(mm, p))
     return form * contact_measure(p, dG)
 
 
@@ -255,13 +298,13 @@ def averages_residual(fk: FractureKinematics, p: ContactParameters, u, avg, q, d
     """Linear equations defining the face averages ``π⁰T(u)`` and ``π⁰[[u]]``, tested with ``q``."""
     names = average_names(p)
     a, r = _named(avg, names), _named(q, names)
-    exact = {
-        "jump_n": normal_jump(u, fk.n),
-        "jump_t": slip(u, fk.n, fk.slip_reference),
-        "traction_n": fk.normal_traction(u),
-        "traction_t": fk.tangential_traction(u),
-    }
-    weight = {"jump_n": p.average_scale, "jump_t": p.average_scale}
+    exact = {"jump_n": normal_jump(u, fk.n), "traction_n": fk.normal_traction(u)}
+    for name, value in (("jump_t", slip(u, fk.frame, fk.slip_reference)),
+                        ("traction_t", fk.tangential_traction(u))):
+        parts = _tangential_names(name, p)
+        exact.update({parts[0]: value} if p.dim == 2 else
+                     {k: value[i] for i, k in enumerate(parts)})
+    weight = {k: p.average_scale for k in names if k.startswith("jump_")}
     form = sum(weight.get(k, 1.0) * (a[k] - exact[k]) * r[k] for k in names)
     return form * contact_measure(p, dG)
 
@@ -298,7 +341,7 @@ def state_indicators(fk: FractureKinematics, p: ContactParameters, u, lam=None,
     tn = negative_part(pn)
     if not p.tangential:
         return ContactState(contact, contact, tn, 0.0 * tn, 0.0 * tn)
-    sliding = ufl.gt(abs(pt), s)
+    sliding = ufl.gt(magnitude(pt), s)
     if p.friction == "coulomb":
         sliding = ufl.And(closed, sliding)
     return ContactState(contact, ufl.conditional(sliding, 1.0, 0.0), tn,

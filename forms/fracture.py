@@ -2,8 +2,10 @@
 
 All quantities live on the interior fracture facets of the connected mesh, measured with a
 ``dS`` whose ``'+'`` side is the side that ``n⁺`` points out of (see ``poromech.mesh.fractured``).
-In 2D the
-tangent is ``τ = (n⁺_y, -n⁺_x)``, the direction in which the fracture polyline is written.
+Tangential quantities are given in the fracture's tangent frame ``(τ_1, …, τ_{d-1})``: in 2D one
+tangent, ``τ = (n⁺_y, -n⁺_x)`` (the direction in which the fracture polyline is written), and
+tangential quantities are scalars; in 3D two tangents of each planar fracture, and tangential
+quantities are 2-vectors of their components in that frame.
 Sign conventions follow the paper: ``[[u]] = u⁺ - u⁻``, ``[[u]]_n = [[u]]·n⁺ <= 0`` (negative when
 open), contact traction ``T_n <= 0`` (compression), aperture ``d_f = d_0 - [[u]]_n``.
 """
@@ -22,17 +24,27 @@ __all__ = [
     "ball_projection",
     "contact_branch",
     "jump",
+    "magnitude",
     "negative_part",
     "normal_jump",
     "positive_part",
     "slip",
     "tangent",
+    "tangential",
+    "tangential_product",
 ]
 
 
 def tangent(n):
     """Unit tangent ``τ = (n_y, -n_x)`` of a 2D fracture with normal ``n``."""
     return ufl.as_vector((n[1], -n[0]))
+
+
+def tangential(vector, frame):
+    """Components of a vector along the tangents of ``frame`` (a scalar in 2D, a 2-vector in 3D)."""
+    if len(frame) == 1:
+        return ufl.dot(vector, frame[0])
+    return ufl.as_vector([ufl.dot(vector, t) for t in frame])
 
 
 def jump(w):
@@ -45,10 +57,23 @@ def normal_jump(w, n):
     return ufl.dot(jump(w), n)
 
 
-def slip(w, n, w_ref=None):
-    """Tangential jump ``[[w]]_τ`` (m), minus that of ``w_ref`` (a slip increment) if given."""
-    s = ufl.dot(jump(w), tangent(n))
-    return s - ufl.dot(jump(w_ref), tangent(n)) if w_ref is not None else s
+def slip(w, frame, w_ref=None):
+    """Tangential jump ``[[w]]_τ`` (m), minus that of ``w_ref`` (a slip increment) if given.
+
+    ``frame`` is the tangent frame (:attr:`FractureKinematics.frame`).
+    """
+    s = tangential(jump(w), frame)
+    return s - tangential(jump(w_ref), frame) if w_ref is not None else s
+
+
+def magnitude(x):
+    """``|x|`` of a tangential quantity (a scalar in 2D, a vector in 3D)."""
+    return abs(x) if x.ufl_shape == () else ufl.sqrt(ufl.inner(x, x))
+
+
+def tangential_product(x, y):
+    """``x·y`` of two tangential quantities (a product of scalars in 2D)."""
+    return x * y if x.ufl_shape == () else ufl.inner(x, y)
 
 
 def negative_part(x):
@@ -74,20 +99,28 @@ def positive_part(x):
 
 
 def ball_projection(x, radius):
-    """``[x]_α``: projection of a 2D tangential scalar on ``[-α, α]`` (α >= 0).
+    """``[x]_α``: projection of a tangential quantity on the ball of radius ``α >= 0``.
 
-    On the boundary ``|x| = α`` the generalized derivative is that of the stick branch.
+    In 2D (a scalar) the clip to ``[-α, α]``; in 3D (a vector) ``x`` inside the disc and
+    ``α x/|x|`` outside. On the boundary ``|x| = α`` the generalized derivative is that of the
+    stick branch.
     """
-    return ufl.conditional(ufl.le(x, radius), ufl.conditional(ufl.ge(x, -radius), x, -radius),
-                           radius)
+    if x.ufl_shape == ():
+        return ufl.conditional(ufl.le(x, radius),
+                               ufl.conditional(ufl.ge(x, -radius), x, -radius), radius)
+    norm = magnitude(x)
+    return ufl.conditional(ufl.le(norm, radius), x, radius * x / norm)
 
 
 def ball_branch(x, radius):
     """Branch of ``[x]_α`` as a UFL number: 0 inside (stick), 1 above ``α``, 2 below ``-α``.
 
-    The comparisons are those of :func:`ball_projection`, so the branch is the one whose
-    derivative the Jacobian uses.
+    In 3D: 0 inside, 1 outside (the direction is continuous, not a branch). The comparisons are
+    those of :func:`ball_projection`, so the branch is the one whose derivative the Jacobian
+    uses.
     """
+    if x.ufl_shape != ():
+        return ufl.conditional(ufl.le(magnitude(x), radius), 0.0, 1.0)
     return ufl.conditional(ufl.le(x, radius), ufl.conditional(ufl.ge(x, -radius), 0.0, 2.0), 1.0)
 
 
@@ -106,6 +139,8 @@ class FractureKinematics:
         biot: Biot coefficient ``b`` (used with ``matrix_pressure``).
         slip_reference: Displacement whose tangential jump is subtracted in the friction law
             (the previous time step, for quasi-static friction), or None (static: total jump).
+        tangents: The tangent frame of the fracture on its faces (3D: two orthonormal vectors
+            per planar fracture); None in 2D, where it is ``τ = (n_y, -n_x)``.
     """
 
     n: ufl.core.expr.Expr
@@ -116,6 +151,12 @@ class FractureKinematics:
     matrix_pressure: ufl.core.expr.Expr | None = None
     biot: ufl.core.expr.Expr | float = 1.0
     slip_reference: ufl.core.expr.Expr | None = None
+    tangents: tuple[ufl.core.expr.Expr, ...] | None = None
+
+    @property
+    def frame(self) -> tuple:
+        """The tangents ``(τ_1, …, τ_{d-1})`` along which tangential quantities are taken."""
+        return self.tangents if self.tangents is not None else (tangent(self.n),)
 
     def stress_variation(self, v):
         """``σ(v) n⁺`` on the chosen side (the linear part of the traction)."""
@@ -139,8 +180,8 @@ class FractureKinematics:
         return ufl.dot(self.traction(u), self.n)
 
     def tangential_traction(self, u):
-        """``T_τ(u) = T(u)·τ`` (Pa)."""
-        return ufl.dot(self.traction(u), tangent(self.n))
+        """``T_τ(u) = T(u)·τ`` (Pa), in the tangent frame."""
+        return tangential(self.traction(u), self.frame)
 
     def normal_variation(self, v):
         """``T_n(v)`` for a test/trial direction ``v`` (no pressure terms)."""
@@ -148,4 +189,4 @@ class FractureKinematics:
 
     def tangential_variation(self, v):
         """``T_τ(v)`` for a test/trial direction ``v`` (no pressure terms)."""
-        return ufl.dot(self.stress_variation(v), tangent(self.n))
+        return tangential(self.stress_variation(v), self.frame)

@@ -26,9 +26,8 @@ import poromech
 from poromech.errors import SolverError
 from poromech.io.checkpoint import load_checkpoint, save_checkpoint
 from poromech.io.output import write_summary
-from poromech.mesh.fractured import FracturedMesh, create_fractured_mesh
+from poromech.mesh.fractured import FracturedMesh, distribute_mesh
 from poromech.mesh.generate import generate_mesh
-from poromech.parallel import agree
 from poromech.physics import Physics
 from poromech.scene.fields import validate_fields
 from poromech.scene.geometry import mesh_sizes, plane_geometry
@@ -79,25 +78,21 @@ def build_mesh(scene: Scene, comm: MPI.Comm, owner=None) -> FracturedMesh:
     Args:
         scene: The scene.
         comm: Communicator.
-        owner: Optional rank of every input cell (rank 0 only), to impose a partition (tests
-            that put a process boundary on a fracture).
+        owner: Optional rank of every input cell (an array on rank 0, or a callable of the cell
+            centroids), to impose a partition (tests that put a process boundary on a fracture).
 
     A failure of gmsh or of the mesh file on rank 0 is raised on every rank.
     """
     geo = plane_geometry(scene)
-    arrays, err = None, None
-    if comm.rank == 0:
-        try:
-            if scene.geometry.mesh is not None:
-                from poromech.mesh.imported import mesh_file_arrays
 
-                arrays = mesh_file_arrays(scene.geometry.mesh, geo, scene.mesh.refinement)
-            else:
-                arrays = generate_mesh(geo, mesh_sizes(scene))
-        except Exception as e:  # noqa: BLE001  (re-raised on every rank by agree)
-            err = e
-    agree(comm, err)
-    return create_fractured_mesh(comm, geo, arrays, owner=owner)
+    def arrays():
+        if scene.geometry.mesh is not None:
+            from poromech.mesh.imported import mesh_file_arrays
+
+            return mesh_file_arrays(scene.geometry.mesh, geo, scene.mesh.refinement)
+        return generate_mesh(geo, mesh_sizes(scene))
+
+    return distribute_mesh(comm, geo, arrays, owner)
 
 
 def mesh_summary(fm: FracturedMesh) -> dict:

@@ -18,7 +18,7 @@ from flow_common import DOCS, generated, markdown_table, order_figure, write_csv
 from mpi4py import MPI
 
 from poromech.flow.balance import compute_fluxes, mass_balance
-from poromech.verification.flow import JumpSolution, build_mesh, observed_orders
+from poromech.verification.flow import JumpSolution, observed_orders, uniform_mesh
 
 KEYS = ("cell", "trace", "fracture", "node")
 COMMAND = "python scripts/flow_convergence.py"
@@ -32,7 +32,7 @@ def main() -> None:
     sol = JumpSolution()
     rows = []
     for m in args.levels:
-        fm = build_mesh(comm, sol.geometry(), 0.2, refinement=m)
+        fm = uniform_mesh(comm, sol.geometry(), 0.2, refinement=m)
         pb = sol.problem(fm, options={"ksp_rtol": 1e-12})
         rec = pb.solve()
         err = sol.errors(pb)

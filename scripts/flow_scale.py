@@ -60,7 +60,7 @@ def run_level(comm, level: int) -> list[list]:
                                        pb.assemble_matrix()))
     pb.solve()
     record("steady, new apertures", round(t_update, 3))
-    pb.set_pressure(lambda x, y, t: np.zeros_like(x))  # start from rest: p⁰ = 0, φ⁰ = 0
+    pb.set_pressure(lambda x, t: np.zeros(len(x)))  # start from rest: p⁰ = 0, φ⁰ = 0
     phi = np.zeros(pb.geom.num_cells)
     for n in range(1, 4):
         step = TimeStep(DT, phi, np.zeros_like(phi), pb.properties.aperture.copy())

@@ -18,7 +18,7 @@ import numpy as np
 from flow_common import DOCS, generated, markdown_table, order_figure, write_csv
 from mpi4py import MPI
 
-from poromech.verification.flow import Diffusion1D, build_mesh, observed_orders
+from poromech.verification.flow import Diffusion1D, observed_orders, uniform_mesh
 
 COMMAND = "python scripts/flow_transient.py"
 
@@ -31,7 +31,7 @@ def main() -> None:
     comm = MPI.COMM_WORLD
     sol = Diffusion1D()
     final = 0.1
-    fm = build_mesh(comm, sol.geometry(), args.size)
+    fm = uniform_mesh(comm, sol.geometry(), args.size)
     rows = []
     for n in args.steps:
         pb = sol.problem(fm)

@@ -149,7 +149,8 @@ def header() -> list[str]:
         "(`poromech run sneddon`; `poromech scenes` lists them, `poromech show NAME` prints "
         "one).",
         "",
-        "**Expressions** (`expr`): a number or a string in `x`, `y` (m), `t` (s), the scene "
+        "**Expressions** (`expr`): a number or a string in `x`, `y`, `z` (m; `z` is 0 in 2D), "
+        "`t` (s), the scene "
         "`parameters` and `pi`, `e`, with `+ - * / ** %`, comparisons, `and`/`or`, and the "
         f"functions {functions} (the last four are the exact fields of `poromech.analytic`), at "
         f"most {expressions.MAX_LENGTH} characters and {expressions.MAX_DEPTH} levels of "

@@ -136,7 +136,10 @@ def test_expressions():
     assert e.depends_on_time and e.is_uniform and not e.is_constant
     assert e.value(250.0) == pytest.approx(0.0025) and e.value(3000.0) == pytest.approx(0.005)
     f = compile_expression("where(x < 1, 1e3, 1e11)")
-    assert np.allclose(f(np.array([0.5, 1.5]), np.zeros(2)), [1e3, 1e11])
+    assert np.allclose(f(np.array([[0.5, 0.0], [1.5, 0.0]])), [1e3, 1e11])
+    g = compile_expression("x + 10*y + 100*z")  # z is a coordinate; 0 where points are 2D
+    assert np.array_equal(g(np.array([[1.0, 2.0, 3.0]])), [321.0])
+    assert np.array_equal(g(np.array([[1.0, 2.0]])), [21.0]) and not g.is_uniform
     assert compile_expression(3).value() == 3.0
     for bad in ["x.__class__", "open('f')", "lambda: 1", "[1, 2]", "x if y else 1", "'text'"]:
         with pytest.raises(ExpressionError):
@@ -160,7 +163,7 @@ def test_one_permeability_is_the_isotropic_list():
     perm = scene_from_dict(base).flow.permeability
     assert len(perm) == 1 and perm[0].value() == 1e-12
     base["flow"]["permeability"] = "2e-12 * (1 + x)"
-    assert scene_from_dict(base).flow.permeability[0](np.array([1.0]), np.array([0.0]), 0.0) \
+    assert scene_from_dict(base).flow.permeability[0](np.array([[1.0, 0.0]]), 0.0) \
         == pytest.approx(4e-12)
     base["flow"]["permeability"] = {"k": 1}
     assert "'flow.permeability' = {" in _error(base) and "must be a list: matrix" in _error(base)

@@ -4,6 +4,7 @@ closes (mass conservation, contact states), restart and 1 rank vs 2 ranks."""
 import json
 import logging
 import re
+import signal
 import subprocess
 import sys
 
@@ -17,7 +18,7 @@ from poromech import stepping
 from poromech.analytic import terzaghi_parameters, terzaghi_pressure, terzaghi_settlement
 from poromech.errors import SolverError
 from poromech.io.xdmf import read_series
-from poromech.run import run_scene
+from poromech.run import Run, run_scene
 from poromech.scene.loading import load_scene
 
 comm = MPI.COMM_WORLD
@@ -151,25 +152,30 @@ def test_fracture_fixed_stress_changes_g_not_its_fixed_point(tmp_path):
     assert_same_fixed_point(runs[0.0], runs[1.0])
 
 
-def test_restart_reproduces_the_uninterrupted_run(tmp_path, monkeypatch):
+def test_restart_reproduces_the_uninterrupted_run(tmp_path):
+    """A run stopped by SIGTERM after its second step and continued with ``restart`` gives the
+    uninterrupted run's fields and fixed-point work."""
     scene = load_scene(TERZAGHI, ["time.steps=4"])
     full = run_scene(scene, tmp_path / "full")
-    real = stepping._check_stop
-    calls = []
 
-    def stop_before_third_step(comm, flag):
-        calls.append(1)
-        if len(calls) == 3:
-            raise stepping.Interrupted(15)
-        real(comm, flag)
+    def terminate_after_second_step(physics):
+        accept, accepted = physics.accept, []
+
+        def accept_and_signal(t):
+            accept(t)
+            accepted.append(t)
+            if len(accepted) == 2:
+                signal.raise_signal(signal.SIGTERM)
+
+        physics.accept = accept_and_signal
 
     part = tmp_path / "part"
-    monkeypatch.setattr(stepping, "_check_stop", stop_before_third_step)
-    with pytest.raises(stepping.Interrupted):
-        run_scene(scene, part)
+    with Run(scene, part, prepare=terminate_after_second_step) as run, \
+            pytest.raises(stepping.Interrupted) as stop:
+        run.execute()
+    assert stop.value.signum == signal.SIGTERM
     summary = json.loads((part / "summary.json").read_text())
     assert summary["completed_steps"] == 2 and summary["status"].startswith("interrupted")
-    monkeypatch.setattr(stepping, "_check_stop", real)
     resumed = run_scene(scene, part, restart=True)
     assert resumed["status"] == "converged" and len(resumed["solves"]) == 4
     a, b = read_series(tmp_path / "full", "flow"), read_series(part, "flow")

@@ -3,7 +3,7 @@
 import numpy as np
 from mpi4py import MPI
 
-from poromech.verification.flow import Diffusion1D, JumpSolution, build_mesh, observed_orders
+from poromech.verification.flow import Diffusion1D, JumpSolution, observed_orders, uniform_mesh
 
 comm = MPI.COMM_WORLD
 
@@ -14,7 +14,7 @@ def test_manufactured_jumps_second_order():
     geo = sol.geometry()
     h, errors, iterations = [], [], []
     for m in range(4):
-        fm = build_mesh(comm, geo, 0.2, refinement=m)
+        fm = uniform_mesh(comm, geo, 0.2, refinement=m)
         pb = sol.problem(fm, options={"ksp_rtol": 1e-12})
         rec = pb.solve()
         iterations.append(rec.iterations)
@@ -32,7 +32,7 @@ def test_manufactured_jumps_second_order():
 def test_transient_first_order_in_time():
     """Implicit Euler on a decaying sine mode with storage: error ∝ Δt."""
     sol = Diffusion1D()
-    fm = build_mesh(comm, sol.geometry(), 0.02)
+    fm = uniform_mesh(comm, sol.geometry(), 0.02)
     steps = np.array([4, 8, 16, 32])
     errors = []
     for n in steps:

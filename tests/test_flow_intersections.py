@@ -24,7 +24,7 @@ from poromech.flow.intersections import (
 )
 from poromech.flow.problem import DarcyProblem, fracture_conductivity
 from poromech.scene.loading import load_scene
-from poromech.verification.flow import barrier_metrics, barrier_scene, build_mesh, solve_scene
+from poromech.verification.flow import barrier_metrics, barrier_scene, solve_scene, uniform_mesh
 
 comm = MPI.COMM_WORLD
 
@@ -67,9 +67,9 @@ def test_network_crossings_and_blocking_junctions():
     With blocking fractures the stem no longer feeds the bar through the T junction and the
     X is closed; the system stays SPD (CG = LU) and conservative.
     """
-    fm = build_mesh(comm, network(), 0.08)
-    bcs = [FlowBoundary("left", (3,), "pressure", lambda x, y, t: np.ones_like(x)),
-           FlowBoundary("right", (1,), "pressure", lambda x, y, t: np.zeros_like(x))]
+    fm = uniform_mesh(comm, network(), 0.08)
+    bcs = [FlowBoundary("left", (3,), "pressure", lambda x, t: np.ones(len(x))),
+           FlowBoundary("right", (1,), "pressure", lambda x, t: np.zeros(len(x)))]
     sols = {}
     for solver in ("direct", "iterative"):
         props = properties(fm, perm=np.eye(2), aperture=1e-3, kn=1e-12, kt=1e-2)
@@ -80,7 +80,7 @@ def test_network_crossings_and_blocking_junctions():
         assert bal["relative_residual"] < 1e-9 and bal["max_local_residual"] < 1e-9
         crossing = pb.crossings.crossing
         blocked = pb.T_fracture[crossing]
-        half = fracture_half_transmissibilities(pb.faces.length,
+        half = fracture_half_transmissibilities(pb.faces.measure,
                                                 fracture_conductivity(pb.properties))
         assert np.all(blocked < 1e-6 * np.column_stack([half, half])[crossing])
         assert np.array_equal(pb.T_fracture[~crossing], np.column_stack([half, half])[~crossing])
@@ -160,6 +160,6 @@ def test_conductive_intersections_unchanged():
     scene = load_scene(ROOT / "configs" / "flemisch_case2.yaml")
     pb = solve_scene(scene, comm)
     assert pb.crossings.num_crossing == 18  # X: 4, T stems and crossings of the inner ones
-    half = fracture_half_transmissibilities(pb.faces.length, fracture_conductivity(pb.properties))
+    half = fracture_half_transmissibilities(pb.faces.measure, fracture_conductivity(pb.properties))
     assert np.array_equal(pb.T_fracture, np.column_stack([half, half]) / pb.properties.viscosity)
     pb.destroy()

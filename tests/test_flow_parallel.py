@@ -18,9 +18,9 @@ from poromech.scene.loading import scene_from_dict
 from poromech.verification.flow import (
     barrier_metrics,
     barrier_scene,
-    build_mesh,
     rectangle,
     solve_scene,
+    uniform_mesh,
 )
 
 TOL = 1e-8
@@ -39,7 +39,7 @@ def checkerboard(centroids):
 
 def solve_network(comm, owner=None) -> dict:
     """Conductive network with sources, anisotropic matrix; gathered on rank 0 (collective)."""
-    fm = build_mesh(comm, network(), 0.08, owner=owner)
+    fm = uniform_mesh(comm, network(), 0.08, owner=owner)
     nc = fm.msh.topology.index_map(2).size_local
     nf = len(fm.fractures.facets)
     perm = np.broadcast_to(np.array([[1.0, 0.3], [0.3, 0.5]]) * 1e-12, (nc, 2, 2)).copy()
@@ -50,9 +50,9 @@ def solve_network(comm, owner=None) -> dict:
     kn = np.where(fm.fractures.fracture == 1, 1e-16, 1e-9)
     props = FlowProperties(perm, 1e-3, np.full(nf, 1e-3), np.full(nf, np.nan), kn,
                            np.full(nf, np.nan), np.zeros(nc))
-    bcs = [FlowBoundary("left", (3,), "pressure", lambda x, y, t: 1e5 + 0 * x),
-           FlowBoundary("right", (1,), "flux", lambda x, y, t: 1e-6 * y)]
-    pb = DarcyProblem(fm, props, bcs, source=lambda x, y, t: 1e-5 * np.sin(3 * x),
+    bcs = [FlowBoundary("left", (3,), "pressure", lambda x, t: 1e5 + 0 * x[:, 0]),
+           FlowBoundary("right", (1,), "flux", lambda x, t: 1e-6 * x[:, 1])]
+    pb = DarcyProblem(fm, props, bcs, source=lambda x, t: 1e-5 * np.sin(3 * x[:, 0]),
                       options={"ksp_rtol": 1e-13})
     rec = pb.solve()
     flux = boundary_fluxes(pb, compute_fluxes(pb))
@@ -78,7 +78,7 @@ def solve_barrier(comm, owner=None) -> dict:
     process boundary runs along both fractures and through their intersection."""
     pb = solve_scene(barrier_scene("crossing"), comm, owner)
     out = barrier_metrics(pb) | {"crossing": pb.crossings.num_crossing,
-                                 "owned_faces": comm.allgather(len(pb.faces.length))}
+                                 "owned_faces": comm.allgather(len(pb.faces.measure))}
     pb.destroy()
     return out
 

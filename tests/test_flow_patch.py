@@ -10,7 +10,7 @@ from poromech.flow.boundary import FlowBoundary
 from poromech.flow.hfv import isotropic_tensor, permeability_tensors
 from poromech.flow.problem import DarcyProblem, FlowProperties
 from poromech.flow.shift import TraceShift
-from poromech.verification.flow import build_mesh, rectangle
+from poromech.verification.flow import rectangle, uniform_mesh
 
 comm = MPI.COMM_WORLD
 LAMBDA = np.array([[2.0, 0.5], [0.5, 1.0]])
@@ -35,7 +35,7 @@ def properties(fm, perm=LAMBDA, aperture=1e-2, kn=np.nan, kt=np.nan, cond=np.nan
 def max_error(pb, exact, traces=True):
     """Largest error over the local dofs (traces optionally left out: they are side values)."""
     pts = pb.dofs.points
-    err = np.abs(pb.p - exact(pts[:, 0], pts[:, 1]))
+    err = np.abs(pb.p - exact(pts))
     if not traces:
         err = err[pb.dofs.kind != 2]
     return comm.allreduce(float(err.max(initial=0.0)), op=MPI.MAX)
@@ -43,15 +43,16 @@ def max_error(pb, exact, traces=True):
 
 def test_affine_patch_without_fractures():
     """Anisotropic full tensor, Dirichlet left/right, exact fluxes top/bottom."""
-    fm = build_mesh(comm, rectangle(0, 0, 1, 1), 0.1)
+    fm = uniform_mesh(comm, rectangle(0, 0, 1, 1), 0.1)
 
-    def exact(x, y, t=0.0):
+    def exact(points, t=0.0):
+        x, y = points[:, 0], points[:, 1]
         return 1.0 + GRAD[0] * x + GRAD[1] * y
 
     qy = float((LAMBDA @ GRAD)[1])  # -Λ∇p·n on the bottom (n = -e_y)
     bcs = [FlowBoundary("lr", (1, 3), "pressure", exact),
-           FlowBoundary("bottom", (0,), "flux", lambda x, y, t: np.full_like(x, qy)),
-           FlowBoundary("top", (2,), "flux", lambda x, y, t: np.full_like(x, -qy))]
+           FlowBoundary("bottom", (0,), "flux", lambda x, t: np.full(len(x), qy)),
+           FlowBoundary("top", (2,), "flux", lambda x, t: np.full(len(x), -qy))]
     pb = DarcyProblem(fm, properties(fm), bcs, solver="direct")
     pb.solve()
     assert max_error(pb, exact) <= 1e-12 * 4
@@ -74,7 +75,8 @@ def two_parallel_fractures():
     jump = 2 * q / (2 * kn / aperture)  # p+ - p- = 2 q / T_f
     C = np.array([jump[0] + jump[1], jump[1], 0.0])
 
-    def exact(x, y, t=0.0):
+    def exact(points, t=0.0):
+        x, y = points[:, 0], points[:, 1]
         s = [(np.column_stack([x, y]) - x0) @ n for x0 in x0s]
         c = np.where(s[0] < 0, C[0], np.where(s[1] < 0, C[1], C[2]))
         c = np.where(np.abs(s[0]) < 1e-12, 0.5 * (C[0] + C[1]), c)  # on the fractures: p_f
@@ -96,7 +98,7 @@ def test_affine_patch_with_fracture_jumps(ratio, monkeypatch):
     """
     monkeypatch.setattr(TraceShift.__init__, "__defaults__", (ratio,))
     geo, exact, aperture, kn, traces = two_parallel_fractures()
-    fm = build_mesh(comm, geo, 0.1)
+    fm = uniform_mesh(comm, geo, 0.1)
     props = properties(fm, aperture=aperture, kn=kn, cond=np.array([0.3, 2.0]))
     pb = DarcyProblem(fm, props, [FlowBoundary("all", (0, 1, 2, 3), "pressure", exact)],
                       solver="direct")
@@ -117,14 +119,15 @@ def test_blocking_fracture_exact_1d():
     of pressures near 1 (1e-16 / 5e-8 ≈ 1e-7 relative); CG + GAMG bounds its error by about
     rtol times the flux scale (1e-12), not by the blocked flux itself.
     """
-    fm = build_mesh(comm, rectangle(0, 0, 1, 0.5, [[[0.5, 0.0], [0.5, 0.5]]]), 0.08)
+    fm = uniform_mesh(comm, rectangle(0, 0, 1, 0.5, [[[0.5, 0.0], [0.5, 0.5]]]), 0.08)
     d, kn = 1e-3, 1e-10
     T_f = 2 * kn / d
     q = 1.0 / (1.0 + 2.0 / T_f)  # K = 1, L = 1: p drops 1 over resistances 1 and 2/T_f
-    bcs = [FlowBoundary("left", (3,), "pressure", lambda x, y, t: np.ones_like(x)),
-           FlowBoundary("right", (1,), "pressure", lambda x, y, t: np.zeros_like(x))]
+    bcs = [FlowBoundary("left", (3,), "pressure", lambda x, t: np.ones(len(x))),
+           FlowBoundary("right", (1,), "pressure", lambda x, t: np.zeros(len(x)))]
 
-    def exact(x, y):
+    def exact(points, t=0.0):
+        x = points[:, 0]
         p = np.where(x < 0.5, 1 - q * x, q * (1 - x))
         return np.where(np.isclose(x, 0.5, rtol=0, atol=1e-12), 0.5, p)
 
@@ -150,9 +153,9 @@ def network(size=0.1):
 @pytest.mark.parametrize("kn", [1e-12, 1e2])
 def test_network_blocking_and_conductive(kn):
     """Tips, corner, T, X and a boundary end: iterative = direct, mass conserved."""
-    fm = build_mesh(comm, network(), 0.08)
-    p_left = FlowBoundary("left", (3,), "pressure", lambda x, y, t: np.ones_like(x))
-    p_right = FlowBoundary("right", (1,), "pressure", lambda x, y, t: np.zeros_like(x))
+    fm = uniform_mesh(comm, network(), 0.08)
+    p_left = FlowBoundary("left", (3,), "pressure", lambda x, t: np.ones(len(x)))
+    p_right = FlowBoundary("right", (1,), "pressure", lambda x, t: np.zeros(len(x)))
     sols = {}
     for solver in ("direct", "iterative"):
         pb = DarcyProblem(fm, properties(fm, perm=np.eye(2), aperture=1e-3, kn=kn, kt=1e-2),
@@ -173,8 +176,8 @@ def test_network_blocking_and_conductive(kn):
 def test_values_only_update():
     """New apertures: same matrix pattern, same answer as a problem built from scratch."""
     geo, *_ = two_parallel_fractures()
-    fm = build_mesh(comm, geo, 0.1)
-    p_lr = FlowBoundary("lr", (1, 3), "pressure", lambda x, y, t: x)
+    fm = uniform_mesh(comm, geo, 0.1)
+    p_lr = FlowBoundary("lr", (1, 3), "pressure", lambda x, t: x[:, 0])
     pb = DarcyProblem(fm, properties(fm, perm=np.eye(2)), [p_lr])
     pb.solve()
     nz = pb.A.getInfo()["nz_allocated"]
@@ -199,12 +202,12 @@ def test_values_only_update():
 @pytest.mark.parametrize("ends", ["inherit", "no_flow"])
 def test_fracture_end_on_pressure_boundary(ends):
     """The 'edge' fracture reaches x = 2: its end node gets p = g (inherit) or no flow."""
-    fm = build_mesh(comm, network(), 0.1)
+    fm = uniform_mesh(comm, network(), 0.1)
 
-    def g(x, y, t=0.0):
-        return 1.0 + 0.5 * y
+    def g(points, t=0.0):
+        return 1.0 + 0.5 * points[:, 1]
 
-    bcs = [FlowBoundary("left", (3,), "pressure", lambda x, y, t: np.zeros_like(x)),
+    bcs = [FlowBoundary("left", (3,), "pressure", lambda x, t: np.zeros(len(x))),
            FlowBoundary("right", (1,), "pressure", g, ends)]
     pb = DarcyProblem(fm, properties(fm, perm=np.eye(2), aperture=1e-2, kt=1.0), bcs,
                       solver="direct")
@@ -216,10 +219,10 @@ def test_fracture_end_on_pressure_boundary(ends):
     found = comm.allreduce(int(at_boundary.sum()))
     assert found >= 1
     if ends == "inherit":
-        assert np.allclose(p_end, g(2.0, 0.8), rtol=0, atol=1e-12)
+        assert np.allclose(p_end, g(np.array([[2.0, 0.8]]))[0], rtol=0, atol=1e-12)
         assert abs(fl["right"]["fracture"]) > 1e-5 * abs(fl["right"]["matrix"]) > 0
     else:
-        assert np.all(np.abs(p_end - g(2.0, 0.8)) > 1e-6)
+        assert np.all(np.abs(p_end - g(np.array([[2.0, 0.8]]))[0]) > 1e-6)
         assert abs(fl["right"]["fracture"]) < 1e-12 * abs(fl["right"]["matrix"])
     pb.destroy()
 
@@ -230,8 +233,8 @@ def test_owned_cell_values_follow_flow_order():
 
     from poromech.mesh.entities import cell_geometry, owned_cell_values
 
-    fm = build_mesh(comm, rectangle(0, 0, 1, 1), 0.2)
+    fm = uniform_mesh(comm, rectangle(0, 0, 1, 1), 0.2)
     f = fem.Function(fem.functionspace(fm.msh, ("DG", 0)))
     f.interpolate(lambda x: x[0] + 10 * x[1])
-    g = cell_geometry(fm)
+    g = cell_geometry(fm.msh)
     assert np.allclose(owned_cell_values(f), g.centroid[:, 0] + 10 * g.centroid[:, 1])

@@ -110,7 +110,7 @@ def test_arc_length_and_face_data(network):
     assert np.all(faces.s > 0) and np.all(faces.s < lengths[faces.fracture])
     assert np.allclose(np.linalg.norm(faces.normal, axis=1), 1.0)
     # face length = h_σ matches the geometry of its facet; total = |Γ|
-    total = comm.allreduce(faces.length.sum(), op=MPI.SUM)
+    total = comm.allreduce(faces.measure.sum(), op=MPI.SUM)
     assert total == pytest.approx(lengths.sum(), rel=1e-12)
     # the corner fracture's two segments have different normals
     corner = faces.fracture == 0

@@ -313,7 +313,7 @@ def test_refinement_of_a_mesh_file(network_files):
     lengths = geo.fracture_lengths()
     faces = fm.fractures
     for k in range(len(lengths)):
-        assert np.isclose(faces.length[faces.fracture == k].sum(), lengths[k], rtol=1e-12)
+        assert np.isclose(faces.measure[faces.fracture == k].sum(), lengths[k], rtol=1e-12)
 
 
 @pytest.mark.mpi

@@ -205,7 +205,7 @@ class Poromechanics:
     def _moduli(self, x: Array) -> tuple[Array, Array]:
         """Young's modulus (Pa) and Poisson's ratio of the scene at points ``x`` at t = 0."""
         m = self.scene.material
-        return m.young(x[:, 0], x[:, 1], 0.0), m.poisson(x[:, 0], x[:, 1], 0.0)
+        return m.young(x, 0.0), m.poisson(x, 0.0)
 
     def _fixed_stress(self) -> FixedStress:
         """The fixed-stress terms of the scene's ``coupling`` (none for a steady scene)."""

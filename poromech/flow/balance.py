@@ -81,15 +81,15 @@ def _local_terms(problem: DarcyProblem, t: float, step: TimeStep | None):
     """Sources and accumulation rates of owned cells and fracture faces (m²/s)."""
     g, f = problem.geom, problem.faces
     q = np.zeros(g.num_cells)
-    qf = np.zeros(len(f.length))
+    qf = np.zeros(len(f.measure))
     if problem.source is not None:
-        q = g.volume * problem.source(g.centroid[:, 0], g.centroid[:, 1], t)
+        q = g.volume * problem.source(g.centroid, t)
     if problem.fracture_source is not None:
-        qf = f.length * problem.fracture_source(f.midpoint[:, 0], f.midpoint[:, 1], t)
+        qf = f.measure * problem.fracture_source(f.midpoint, t)
     acc, accf = np.zeros_like(q), np.zeros_like(qf)
     if step is not None:
         acc = g.volume * (problem.porosity(step) - step.porosity_prev) / step.dt
-        accf = f.length * (problem.fracture_volume(step) - step.aperture_prev) / step.dt
+        accf = f.measure * (problem.fracture_volume(step) - step.aperture_prev) / step.dt
     return q, qf, acc, accf
 
 

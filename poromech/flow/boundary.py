@@ -36,7 +36,7 @@ class FlowBoundary:
         name: Boundary name (reported fluxes are grouped by it).
         edges: Domain polygon edges it covers.
         kind: ``pressure`` (Pa) or ``flux`` (outward volumetric flux per area, m/s).
-        value: The imposed value ``f(x, y, t)``, vectorized over points.
+        value: The imposed value ``f(x, t)`` at points ``x`` ``(n, d)``.
         fracture_ends: ``inherit`` (fracture nodes on these edges get the same condition) or
             ``no_flow`` (fracture ends there are impervious).
     """

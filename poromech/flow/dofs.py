@@ -110,8 +110,12 @@ def _reverse_sum(imap, local: IntArray) -> IntArray:
 
 
 def _owned_nodes(fm: FracturedMesh) -> npt.NDArray[np.int32]:
-    """Owned vertices that are fracture-network nodes (collective)."""
-    vmap = fm.msh.topology.index_map(0)
+    """Owned entities of dimension ``d - 2`` that are fracture-network nodes (collective).
+
+    Vertices in 2D (where the fracture network's faces are segments).
+    """
+    top = fm.msh.topology
+    vmap = top.index_map(top.dim - 2)
     mark = np.zeros(vmap.size_local + vmap.num_ghosts, dtype=np.int64)
     if len(fm.fracture_facets_all):
         mark[np.unique(facet_vertices(fm.msh, fm.fracture_facets_all))] = 1
@@ -127,8 +131,7 @@ def _along_fracture(fm: FracturedMesh, verts: npt.NDArray[np.int32]) -> npt.NDAr
     if len(verts) == 0:
         return verts
     x = vertex_coordinates(fm.msh, verts.ravel()).reshape(-1, 2, 2)
-    n = fm.fractures.normal
-    t = np.column_stack([n[:, 1], -n[:, 0]])
+    t = fm.fractures.tangents[:, 0]
     swap = np.einsum("ni,ni->n", x[:, 1] - x[:, 0], t) < 0
     verts[swap] = verts[swap][:, ::-1]
     return verts
@@ -136,7 +139,8 @@ def _along_fracture(fm: FracturedMesh, verts: npt.NDArray[np.int32]) -> npt.NDAr
 
 def _facet_layout(fm: FracturedMesh):
     """Local fracture mask and the owned facets' dof offsets (relative to the facet block)."""
-    fmap = fm.msh.topology.index_map(1)
+    top = fm.msh.topology
+    fmap = top.index_map(top.dim - 1)
     is_frac = np.zeros(fmap.size_local + fmap.num_ghosts, dtype=bool)
     is_frac[fm.fracture_facets_all] = True
     size = np.where(is_frac[: fmap.size_local], 3, 1)
@@ -146,7 +150,8 @@ def _facet_layout(fm: FracturedMesh):
 def _facet_data(fm: FracturedMesh, start: int, nc: int, offset: IntArray) -> IntArray:
     """``[global first dof, global + cell, boundary edge]`` of every local facet (collective)."""
     msh = fm.msh
-    fmap, cmap = msh.topology.index_map(1), msh.topology.index_map(2)
+    tdim = msh.topology.dim
+    fmap, cmap = msh.topology.index_map(tdim - 1), msh.topology.index_map(tdim)
     data = np.full((fmap.size_local, 3), -1, dtype=np.int64)
     data[:, 0] = start + nc + offset[:-1]
     plus = fm.fractures.plus[:, 0].astype(np.int32)
@@ -166,7 +171,8 @@ def number_dofs(fm: FracturedMesh, geom: CellGeometry) -> FlowDofs:
         The local view of the distributed numbering.
     """
     msh, comm = fm.msh, fm.comm
-    cmap, vmap = msh.topology.index_map(2), msh.topology.index_map(0)
+    tdim = msh.topology.dim
+    cmap, vmap = msh.topology.index_map(tdim), msh.topology.index_map(tdim - 2)
     nc = cmap.size_local
     is_frac, offset = _facet_layout(fm)
     nodes = _owned_nodes(fm)

@@ -30,7 +30,7 @@ def matrix_fields(problem: DarcyProblem, fluxes: Fluxes) -> dict[str, np.ndarray
 
 def fracture_fields(problem: DarcyProblem, fluxes: Fluxes) -> dict[str, np.ndarray]:
     """Pressures, aperture and fluxes on the owned fracture faces."""
-    length = problem.faces.length
+    length = problem.faces.measure
     along = 0.5 * (fluxes.fracture[:, 1] - fluxes.fracture[:, 0])
     return {
         "p_f": problem.fracture_pressure,
@@ -39,7 +39,7 @@ def fracture_fields(problem: DarcyProblem, fluxes: Fluxes) -> dict[str, np.ndarr
         "d_f": problem.properties.aperture,
         "u_plus": fluxes.pair[:, 0] / length,
         "u_minus": fluxes.pair[:, 1] / length,
-        "q_f": along[:, None] * problem.faces.tangent,
+        "q_f": along[:, None] * problem.face_direction,
     }
 
 

@@ -48,7 +48,6 @@ from poromech.mesh.fractured import FracturedMesh
 __all__ = [
     "DarcyProblem",
     "FlowBoundary",
-    "FractureFaceData",
     "FlowProperties",
     "TimeStep",
     "fracture_conductivity",
@@ -56,8 +55,8 @@ __all__ = [
 ]
 
 Array = npt.NDArray[np.float64]
-#: A space-time field ``f(x, y, t)`` evaluated at arrays of points.
-Field = Callable[..., Array]
+#: A space-time field ``f(points, t)``: values at points ``(n, d)`` (m) and time ``t`` (s).
+Field = Callable[[Array, float], Array]
 
 
 @dataclass(frozen=True)
@@ -127,21 +126,6 @@ def normal_transmissibility(props: FlowProperties) -> Array:
     return 2.0 * kn / d
 
 
-@dataclass(frozen=True)
-class FractureFaceData:
-    """Owned fracture faces in the order of ``fm.fractures`` (local data).
-
-    Attributes:
-        length: ``|σ|`` (m).
-        midpoint: ``x_σ`` (m).
-        tangent: Unit vector from the face's first node to its second.
-    """
-
-    length: Array
-    midpoint: Array
-    tangent: Array
-
-
 class DarcyProblem:
     """Mixed-dimensional HFV Darcy flow on a fractured mesh (DESIGN §5); owns its PETSc objects.
 
@@ -149,8 +133,8 @@ class DarcyProblem:
         fm: The fractured mesh (the mechanics' partition).
         properties: Coefficients on the owned entities.
         boundary: Boundary conditions; unlisted domain edges are impervious.
-        source: Matrix source ``q(x, y, t)`` (1/s), or None.
-        fracture_source: Fracture source ``q_f(x, y, t)`` per fracture area (m/s), or None.
+        source: Matrix source ``q(x, t)`` (1/s), or None.
+        fracture_source: Fracture source ``q_f(x, t)`` per fracture area (m/s), or None.
         prefix: PETSc options prefix.
         solver: ``iterative`` (CG + GAMG) or ``direct`` (MUMPS) defaults.
         options: PETSc options merged over the defaults (without the prefix).
@@ -160,7 +144,9 @@ class DarcyProblem:
     Attributes:
         geom: Geometry of the owned cells.
         dofs: The distributed numbering of the unknowns.
-        faces: Owned fracture faces (same order as ``fm.fractures``).
+        faces: The owned fracture faces, ``fm.fractures``.
+        face_direction: Unit vector from the first to the second node unknown of each face (the
+            direction of positive flux along it), ``(nf, d)``.
         bdofs: Where the boundary conditions act.
         A_cell: Cell matrices ``A_K / η`` of the owned cells, ``(nc, 3, 3)`` (m²/(Pa·s)).
         t_pair: ``|σ| T_f / η`` of the owned fracture faces (m²/(Pa·s)).
@@ -188,9 +174,10 @@ class DarcyProblem:
         geom: CellGeometry | None = None,
     ):
         self.fm, self.comm = fm, fm.comm
-        self.geom: CellGeometry = cell_geometry(fm) if geom is None else geom
+        self.geom: CellGeometry = cell_geometry(fm.msh) if geom is None else geom
         self.dofs: FlowDofs = number_dofs(fm, self.geom)
-        self.faces = _fracture_faces(fm, self.dofs)
+        self.faces = fm.fractures
+        self.face_direction = _node_directions(self.dofs)
         self.crossings = FractureCrossings(self.comm, self.dofs, fm.fractures.fracture)
         self.boundary = tuple(boundary)
         self.bdofs = boundary_dofs(self.dofs, self.geom, fm.geometry.boundary, self.boundary)
@@ -237,9 +224,9 @@ class DarcyProblem:
         """Fracture transmissibilities from the current properties (collective)."""
         props, eta = self.properties, self.properties.viscosity
         T_f = normal_transmissibility(props)
-        self.t_pair = self.faces.length * T_f / eta
+        self.t_pair = self.faces.measure * T_f / eta
         C_f = fracture_conductivity(props)
-        half = hfv.fracture_half_transmissibilities(self.faces.length, C_f)
+        half = hfv.fracture_half_transmissibilities(self.faces.measure, C_f)
         with np.errstate(divide="ignore"):
             crossed = self.crossings.averages(np.column_stack([0.5 / T_f, props.aperture]))
         added = crossing_resistance(crossed, C_f, props.aperture)
@@ -252,11 +239,11 @@ class DarcyProblem:
     def element_values(self, dt: float | None) -> ElementValues:
         """Element matrices for a steady (``dt`` None) or implicit Euler solve."""
         storage = np.zeros(self.geom.num_cells)
-        fracture_storage = np.zeros(len(self.faces.length))
+        fracture_storage = np.zeros(len(self.faces.measure))
         if dt is not None:
             storage = self.geom.volume * self.properties.storage / dt
             if self.properties.fracture_storage is not None:
-                fracture_storage = self.faces.length * self.properties.fracture_storage / dt
+                fracture_storage = self.faces.measure * self.properties.fracture_storage / dt
         E = cell_elements(self.A_cell)
         plain, touching = self.pattern.plain_cells, self.pattern.fracture_cells
         return ElementValues(
@@ -328,9 +315,9 @@ class DarcyProblem:
         d, g, f = self.dofs, self.geom, self.faces
         b = np.zeros(d.num_local)
         if self.source is not None:
-            b[d.cell] += g.volume * self.source(g.centroid[:, 0], g.centroid[:, 1], t)
+            b[d.cell] += g.volume * self.source(g.centroid, t)
         if self.fracture_source is not None:
-            b[d.fracture] += f.length * self.fracture_source(f.midpoint[:, 0], f.midpoint[:, 1], t)
+            b[d.fracture] += f.measure * self.fracture_source(f.midpoint, t)
         dof, bc, area = self.bdofs.flux_faces
         b -= np.bincount(dof, area * self._boundary_values(dof, bc, t), minlength=d.num_local)
         dof, bc, face = self.bdofs.flux_nodes
@@ -338,7 +325,7 @@ class DarcyProblem:
         b -= np.bincount(dof, d_f * self._boundary_values(dof, bc, t), minlength=d.num_local)
         if step is not None:
             b[d.cell] += g.volume * (step.porosity_prev - step.porosity_fixed) / step.dt
-            b[d.fracture] -= f.length * (self._volume_fixed(step) - step.aperture_prev) / step.dt
+            b[d.fracture] -= f.measure * (self._volume_fixed(step) - step.aperture_prev) / step.dt
         values = self._values if self._values is not None else self.element_values(None).flat()
         return b + self.pattern.dirichlet_rhs(values, self.dirichlet_values(t))
 
@@ -349,7 +336,7 @@ class DarcyProblem:
         for i, cond in enumerate(self.boundary):
             sel = bc == i
             if sel.any():
-                out[sel] = cond.value(x[sel, 0], x[sel, 1], t)
+                out[sel] = cond.value(x[sel], t)
         return out
 
     def dirichlet_values(self, t: float) -> Array:
@@ -366,7 +353,7 @@ class DarcyProblem:
         g = self.dirichlet_values(t)[dof[owned]]
         total, count = self.comm.allreduce(np.array([g.sum(), float(len(g))]), op=MPI.SUM)
         level = total / count if count else 0.0
-        self.set_pressure(lambda x, y, t: np.full_like(x, level), t)
+        self.set_pressure(lambda x, t: np.full(len(x), level), t)
 
     def _read_solution(self) -> None:
         """Pressures from the solved variables: traces are ``δ + p_f`` (see ``system``)."""
@@ -376,9 +363,8 @@ class DarcyProblem:
         self.shift.to_pressure(self.p)
 
     def set_pressure(self, p: Field, t: float = 0.0) -> None:
-        """Set every unknown from ``p(x, y, t)``: initial state or initial guess (collective)."""
-        pts = self.dofs.points
-        self.p[:] = p(pts[:, 0], pts[:, 1], t)
+        """Set every unknown from ``p(x, t)``: initial state or initial guess (collective)."""
+        self.p[:] = p(self.dofs.points, t)
         self._write_guess()
         self._guess_set = True
 
@@ -461,10 +447,9 @@ class DarcyProblem:
             obj.destroy()
 
 
-def _fracture_faces(fm: FracturedMesh, dofs: FlowDofs) -> FractureFaceData:
-    """Lengths, midpoints and node-to-node tangents of the owned fracture faces."""
+def _node_directions(dofs: FlowDofs) -> Array:
+    """Unit vectors from the first to the second node unknown of each owned fracture face."""
     ends = dofs.points[dofs.node].reshape(-1, 2, 2)
     t = ends[:, 1] - ends[:, 0]
     length = np.linalg.norm(t, axis=1)
-    safe = np.where(length > 0, length, 1.0)
-    return FractureFaceData(length, fm.fractures.midpoint, t / safe[:, None])
+    return t / np.where(length > 0, length, 1.0)[:, None]

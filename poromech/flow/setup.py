@@ -34,7 +34,7 @@ def _at(expr: Expression | None, x: np.ndarray, t: float) -> np.ndarray:
     """Values at points ``x`` (NaN for an unset expression)."""
     if expr is None:
         return np.full(len(x), np.nan)
-    return expr(x[:, 0], x[:, 1], t)
+    return expr(x, t)
 
 
 def _fracture_values(flow: Flow, fm: FracturedMesh, name: str, t: float) -> np.ndarray:
@@ -88,7 +88,7 @@ def flow_boundaries(scene: Scene, geometry: PlaneGeometry) -> list[FlowBoundary]
 def problem_from_scene(scene: Scene, fm: FracturedMesh, prefix: str = "flow_") -> DarcyProblem:
     """Build the flow problem of a scene, with coefficients at ``t = 0`` (collective)."""
     flow = scene.flow
-    geom = cell_geometry(fm)
+    geom = cell_geometry(fm.msh)
     return DarcyProblem(
         fm,
         flow_properties(scene, fm, geom),

@@ -66,7 +66,8 @@ class TraceShift:
         Returns:
             True when the choice changed on any rank.
         """
-        fmap = self.fm.msh.topology.index_map(1)
+        top = self.fm.msh.topology
+        fmap = top.index_map(top.dim - 1)
         vec = dolfinx.la.vector(fmap, 1, dtype=np.float64)
         diag = np.einsum("nii->ni", A_cell)
         vec.array[:] = 0.0

@@ -50,9 +50,30 @@ class PlaneGeometry:
         """Diameter of the bounding box of the domain (m)."""
         return float(np.linalg.norm(self.boundary.max(axis=0) - self.boundary.min(axis=0)))
 
+    @property
+    def dim(self) -> int:
+        """The space dimension, 2."""
+        return 2
+
     def fracture_lengths(self) -> npt.NDArray[np.float64]:
         """Length of every fracture (m)."""
         return np.array([np.linalg.norm(np.diff(p, axis=0), axis=1).sum() for p in self.fractures])
+
+    def face_normals(self, fracture: npt.NDArray[np.int32],
+                     segment: npt.NDArray[np.int32]) -> npt.NDArray[np.float64]:
+        """``n⁺`` of fracture faces given by their fracture and polyline segment, ``(n, 2)``."""
+        normals = np.empty((len(fracture), 2))
+        for k, pts in enumerate(self.fractures):
+            sel = fracture == k
+            normals[sel] = segment_normals(pts)[segment[sel]]
+        return normals
+
+    def face_tangents(self, normals: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+        """The tangent frame of faces with normals ``n⁺``: ``τ = (n_y, -n_x)``, ``(n, 1, 2)``.
+
+        ``τ`` runs along the polyline, from its first point to its last.
+        """
+        return np.column_stack([normals[:, 1], -normals[:, 0]])[:, None, :]
 
 
 def segment_normals(points: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:

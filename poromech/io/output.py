@@ -30,6 +30,7 @@ from mpi4py import MPI
 
 from poromech.errors import OutputError
 from poromech.io.xdmf import MeshPiece, atomic_write_text, root_write
+from poromech.mesh.entities import input_cells
 from poromech.mesh.fractured import FracturedMesh
 
 __all__ = [
@@ -61,14 +62,14 @@ def displacement_mesh(V: fem.FunctionSpace) -> MeshPiece:
     imap = V.dofmap.index_map
     nown = imap.size_local
     blocks = np.arange(nown, dtype=np.int32)
-    ncells = msh.topology.index_map(2).size_local
+    ncells = msh.topology.index_map(msh.topology.dim).size_local
     cell_blocks = imap.local_to_global(V.dofmap.list[:ncells].ravel()).reshape(ncells, -1)
     if cell_blocks.shape[1] == 6:
         cells = cell_blocks[:, _P2_SPLIT].reshape(-1, 3)
     else:
         cells = cell_blocks
     first_cell = msh.comm.exscan(len(cells)) or 0
-    coords = V.tabulate_dof_coordinates()[:nown, :2]
+    coords = V.tabulate_dof_coordinates()[:nown, :msh.geometry.dim]
     return MeshPiece(imap.local_to_global(blocks), coords,
                      first_cell + np.arange(len(cells), dtype=np.int64), cells.astype(np.int64))
 
@@ -89,7 +90,7 @@ def fracture_mesh(fm: FracturedMesh) -> MeshPiece:
     faces = fm.fractures
     nodes = dolfinx.mesh.entities_to_geometry(fm.msh, 1, faces.facets)
     x = fm.msh.geometry.x[nodes][:, :, :2] if len(faces.facets) else np.empty((0, 2, 2))
-    tangent = np.column_stack([faces.normal[:, 1], -faces.normal[:, 0]])
+    tangent = faces.tangents[:, 0]
     swap = np.einsum("ni,ni->n", x[:, 1] - x[:, 0], tangent) < 0
     x[swap] = x[swap][:, ::-1]
     ids = faces.index.astype(np.int64)
@@ -100,13 +101,12 @@ def fracture_mesh(fm: FracturedMesh) -> MeshPiece:
 def matrix_mesh(fm: FracturedMesh) -> MeshPiece:
     """The owned cells of the connected mesh in gmsh's input numbering (cells and nodes)."""
     msh = fm.msh
-    n = msh.topology.index_map(2).size_local
+    cells = input_cells(msh)
     geo = msh.geometry
-    nodes = geo.dofmaps[0][:n]
+    nodes = geo.dofmaps[0][: len(cells)]
     inputs = np.asarray(geo.input_global_indices, dtype=np.int64)
     used = np.unique(nodes)
-    cells = np.asarray(msh.topology.original_cell_index, dtype=np.int64)[:n]
-    return MeshPiece(inputs[used], geo.x[used, :2], cells, inputs[nodes])
+    return MeshPiece(inputs[used], geo.x[used, :geo.dim], cells, inputs[nodes])
 
 
 class FractureTable:

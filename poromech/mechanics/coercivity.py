@@ -28,7 +28,7 @@ from mpi4py import MPI
 
 from poromech.forms.elasticity import epsilon, sigma
 from poromech.forms.fracture import tangent
-from poromech.mesh.fractured import FRACTURE_TAG, FracturedMesh, fracture_measure
+from poromech.mesh.fractured import FRACTURE_TAG, FracturedMesh, face_size, fracture_measure
 
 __all__ = ["symmetric_nitsche_ratio"]
 
@@ -86,7 +86,8 @@ def symmetric_nitsche_ratio(fm: FracturedMesh, degree: int, young: npt.ArrayLike
     ncells = Q0.dofmap.index_map.size_local + Q0.dofmap.index_map.num_ghosts
     E.x.array[Q0.dofmap.list[:ncells, 0]] = np.broadcast_to(young, (ncells,))
     nu.x.array[Q0.dofmap.list[:ncells, 0]] = np.broadcast_to(poisson, (ncells,))
-    W = fem.functionspace(msh, ("DG", degree, (2,)))
+    gdim = msh.geometry.dim
+    W = fem.functionspace(msh, ("DG", degree, (gdim,)))
     u, v = ufl.TrialFunction(W), ufl.TestFunction(W)
     entities = fm.fractures.integration_entities.reshape(-1, 4)
     cells = np.unique(entities[:, [0, 2]] if side == "mean" else entities[:, 0])
@@ -94,13 +95,13 @@ def symmetric_nitsche_ratio(fm: FracturedMesh, degree: int, young: npt.ArrayLike
     n = ufl.FacetNormal(msh)("+")
     a = fem.form(ufl.inner(sigma(u, E, nu), epsilon(v)) * dx(1))
     dG = fracture_measure(fm)(FRACTURE_TAG)
-    h = ufl.FacetArea(msh)("+")
+    h = face_size(msh)("+")
     b = fem.form(_traction_form(u, v, n, h, E, nu, side, beta_n0, beta_t0) * dG)
     A = fem.assemble_matrix(a).to_scipy(ghosted=True).tocsr()
     B = fem.assemble_matrix(b).to_scipy(ghosted=True).tocsr()
     dofs = W.dofmap.list
     rho = 0.0
     for c in cells:
-        d = (2 * dofs[c][:, None] + np.arange(2)).ravel()
+        d = (gdim * dofs[c][:, None] + np.arange(gdim)).ravel()
         rho = max(rho, _cell_ratio(A[d][:, d].toarray(), B[d][:, d].toarray()))
     return float(msh.comm.allreduce(rho, op=MPI.MAX))

@@ -25,7 +25,13 @@ from poromech.forms import contact as cforms
 from poromech.forms.elasticity import biot_stress_form, elastic_form
 from poromech.forms.fracture import FractureKinematics, normal_jump, slip
 from poromech.mechanics.coercivity import symmetric_nitsche_ratio
-from poromech.mesh.fractured import FRACTURE_TAG, FracturedMesh, cracked_space, fracture_measure
+from poromech.mesh.fractured import (
+    FRACTURE_TAG,
+    FracturedMesh,
+    cracked_space,
+    face_size,
+    fracture_measure,
+)
 from poromech.scene.expressions import Expression
 from poromech.scene.schema import Contact, Scene
 
@@ -57,10 +63,10 @@ class _Updater:
             vals = [e.value(t) for e in self.exprs]
             self.target.value = vals[0] if len(vals) == 1 else np.array(vals)
             return
-        exprs = self.exprs
+        exprs = self.exprs  # DOLFINx gives the points as x (3, n)
         self.target.interpolate(
-            lambda x: np.vstack([e(x[0], x[1], t) for e in exprs]) if len(exprs) > 1
-            else exprs[0](x[0], x[1], t)
+            lambda x: np.vstack([e(x.T, t) for e in exprs]) if len(exprs) > 1
+            else exprs[0](x.T, t)
         )
         self.target.x.scatter_forward()
 
@@ -83,7 +89,8 @@ class PressureCoupling:
 
 def _facet_submesh(fm: FracturedMesh):
     """The fracture faces as a 1D mesh, with its entity map to the parent facets (collective)."""
-    sub, emap, _, _ = dolfinx.mesh.create_submesh(fm.msh, 1, fm.fracture_facets_all)
+    tdim = fm.msh.topology.dim
+    sub, emap, _, _ = dolfinx.mesh.create_submesh(fm.msh, tdim - 1, fm.fracture_facets_all)
     return sub, emap
 
 
@@ -160,7 +167,7 @@ class MechanicsModel:
         θ = 1 is used below its coercivity bound (:mod:`poromech.mechanics.coercivity`).
         """
         c, msh = self.scene.contact, self.fm.msh
-        h = ufl.FacetArea(msh)("+")
+        h = face_size(msh)("+")
         fc = fem.Constant(msh, c.friction_coefficient) if c.friction == "coulomb" else None
         s = None
         if c.friction == "tresca":
@@ -332,7 +339,8 @@ class MechanicsModel:
                 if expr is None:
                     continue
                 Vk, _ = self.V.sub(k).collapse()
-                dofs = fem.locate_dofs_topological((self.V.sub(k), Vk), 1, facets)
+                dofs = fem.locate_dofs_topological((self.V.sub(k), Vk),
+                                                   self.fm.msh.topology.dim - 1, facets)
                 g = fem.Function(Vk)
                 upd = _Updater(g, (expr,))
                 upd(0.0)
@@ -348,7 +356,7 @@ class MechanicsModel:
         v = ufl.TestFunction(self.V)
         dx = ufl.Measure("dx", domain=msh)
         tags = dolfinx.mesh.meshtags(
-            msh, 1, fm.boundary_facets[np.argsort(fm.boundary_facets)],
+            msh, msh.topology.dim - 1, fm.boundary_facets[np.argsort(fm.boundary_facets)],
             fm.boundary_edge[np.argsort(fm.boundary_facets)] + 1,
         )
         ds = ufl.Measure("ds", domain=msh, subdomain_data=tags)
@@ -382,7 +390,7 @@ class MechanicsModel:
         if self.avg is not None:
             q = ufl.TestFunction(self.avg.function_space)
             scale = self.young("+") if isinstance(self.young, fem.Function) else self.young
-            weight = scale / ufl.FacetArea(msh)("+")
+            weight = scale / face_size(msh)("+")
             cp = cforms.ContactParameters(**{**c.__dict__, "average_scale": weight})
             residuals.append(
                 cforms.averages_residual(self.kinematics, cp, self.u, self.avg("+"), q("+"), dG)
@@ -408,16 +416,16 @@ class MechanicsModel:
         self.faces = fem.Function(self._dg0(len(FACE_FIELDS)), name="fracture")
         q = ufl.TestFunction(self.faces.function_space)
         fk, c = self.kinematics, self.params
-        jn, jt = normal_jump(self.u, fk.n), slip(self.u, fk.n)
+        jn, jt = normal_jump(self.u, fk.n), slip(self.u, fk.frame)
         if c.active:
             st = cforms.state_indicators(fk, c, self.u, _plus(self.lam), _plus(self.avg))
             values = (jn, jt, st.traction_n, st.traction_t, st.bound, st.contact, st.slip)
         else:
             values = (jn, jt) + (0.0 * jn,) * (len(FACE_FIELDS) - 2)
         dG = cforms.contact_measure(c, self.dG)
-        h = ufl.FacetArea(self.fm.msh)("+")
+        area = ufl.FacetArea(self.fm.msh)("+")  # |σ|: the face means are ∫ val / |σ|
         em = self.entity_maps or None
-        form = sum(val * q("+")[i] / h for i, val in enumerate(values)) * dG
+        form = sum(val * q("+")[i] / area for i, val in enumerate(values)) * dG
         self._faces_form = fem.form(form, entity_maps=em)
         if c.active:
             self._build_active_set(dG)
@@ -432,7 +440,7 @@ class MechanicsModel:
         """
         c = self.params
         k = c.quadrature_degree // 2 if cforms.pointwise(c) else 0
-        element = basix.ufl.element("DG", "interval", k,
+        element = basix.ufl.element("DG", self.submesh.topology.cell_name(), k,
                                     lagrange_variant=basix.LagrangeVariant.gl_warped)
         self._points = fem.Function(fem.functionspace(self.submesh, element), name="active_set")
         r = ufl.TestFunction(self._points.function_space)("+")
@@ -475,7 +483,7 @@ class MechanicsModel:
     def cell_divergence(self) -> npt.NDArray[np.float64]:
         """Cell means ``(div u)_K`` on the owned cells, in cell order (collective-free, local)."""
         vals = fem.assemble_vector(self._div_form).array
-        n = self.fm.msh.topology.index_map(2).size_local
+        n = self.fm.msh.topology.index_map(self.fm.msh.topology.dim).size_local
         dofs = self._div_values.function_space.dofmap.list[:n, 0]
         return vals[dofs] / self._cell_area[dofs]
 
@@ -568,7 +576,7 @@ def _cell_values(msh: dolfinx.mesh.Mesh, expr: Expression, t: float = 0.0):
     if expr.is_uniform:
         return np.full(n, expr.value(t))
     x = dolfinx.mesh.compute_midpoints(msh, msh.topology.dim, np.arange(n, dtype=np.int32))
-    return np.broadcast_to(np.asarray(expr(x[:, 0], x[:, 1], t), dtype=np.float64), (n,)).copy()
+    return expr(x, t)
 
 
 def _plus(f):

@@ -1,4 +1,7 @@
-"""Geometric data of the HFV unknowns, read from a DOLFINx triangle mesh (local, vectorized).
+"""Geometry of the owned entities of a simplex mesh (local, vectorized): one home for it.
+
+Cell volumes, centroids, faces with their measures and outward normals (the HFV unknowns'
+geometry), facet vertices and coordinates, and the input (gmsh) numbers of the owned cells.
 
 Cell data cover the cells owned by this rank; facet and vertex data cover every local (owned or
 ghost) facet and vertex, so that the faces of owned cells are always available.
@@ -14,8 +17,6 @@ import dolfinx
 import numpy as np
 import numpy.typing as npt
 
-from poromech.mesh.fractured import FracturedMesh
-
 __all__ = [
     "CellGeometry",
     "cell_geometry",
@@ -28,18 +29,18 @@ __all__ = [
 
 @dataclass(frozen=True)
 class CellGeometry:
-    """Owned cells and their faces (SI units, m and m²).
+    """Owned cells and their faces (SI units; ``d`` the dimension, ``d + 1`` faces per cell).
 
     Attributes:
-        volume: Cell areas ``|K|``, ``(n,)``.
-        centroid: Cell centres ``x_K``, ``(n, 2)``.
-        facets: Local facet index of each face, ``(n, 3)`` (local facet ``i`` opposite vertex
-            ``i``).
-        area: Face lengths ``|σ|``, ``(n, 3)``.
-        normal: Outward unit normals ``n_{K,σ}``, ``(n, 3, 2)``.
-        offset: ``x_σ - x_K``, ``(n, 3, 2)``.
-        facet_midpoint: Midpoints of all local facets, ``(num_facets, 2)``.
-        facet_length: Lengths of all local facets, ``(num_facets,)``.
+        volume: Cell measures ``|K|`` (areas in 2D, volumes in 3D), ``(n,)``.
+        centroid: Cell centres ``x_K``, ``(n, d)``.
+        facets: Local facet index of each face, ``(n, d + 1)`` (local facet ``i`` opposite
+            vertex ``i``).
+        area: Face measures ``|σ|`` (lengths in 2D, areas in 3D), ``(n, d + 1)``.
+        normal: Outward unit normals ``n_{K,σ}``, ``(n, d + 1, d)``.
+        offset: ``x_σ - x_K``, ``(n, d + 1, d)``.
+        facet_midpoint: Barycentres of all local facets, ``(num_facets, d)``.
+        facet_length: Measures of all local facets, ``(num_facets,)``.
     """
 
     volume: npt.NDArray[np.float64]
@@ -58,50 +59,65 @@ class CellGeometry:
 
 
 def _facet_frames(msh: dolfinx.mesh.Mesh):
-    """Midpoints, lengths and unit normals (arbitrary sign) of all local facets."""
-    imap = msh.topology.index_map(1)
+    """Midpoints, measures (length, area) and unit normals (arbitrary sign) of all local facets."""
+    tdim, gdim = msh.topology.dim, msh.geometry.dim
+    imap = msh.topology.index_map(tdim - 1)
     facets = np.arange(imap.size_local + imap.num_ghosts, dtype=np.int32)
-    xg = msh.geometry.x[:, :2]
-    nodes = dolfinx.mesh.entities_to_geometry(msh, 1, facets)
-    a, b = xg[nodes[:, 0]], xg[nodes[:, 1]]
-    t = b - a
-    length = np.linalg.norm(t, axis=1)
-    normal = np.column_stack([-t[:, 1], t[:, 0]]) / length[:, None]
-    return 0.5 * (a + b), length, normal
+    xg = msh.geometry.x[:, :gdim]
+    nodes = dolfinx.mesh.entities_to_geometry(msh, tdim - 1, facets)
+    if tdim == 2:
+        a, b = xg[nodes[:, 0]], xg[nodes[:, 1]]
+        t = b - a
+        length = np.linalg.norm(t, axis=1)
+        normal = np.column_stack([-t[:, 1], t[:, 0]]) / length[:, None]
+        return 0.5 * (a + b), length, normal
+    a, b, c = xg[nodes[:, 0]], xg[nodes[:, 1]], xg[nodes[:, 2]]
+    cross = np.cross(b - a, c - a)
+    twice = np.linalg.norm(cross, axis=1)
+    return (a + b + c) / 3.0, 0.5 * twice, cross / twice[:, None]
 
 
-def cell_geometry(fm: FracturedMesh) -> CellGeometry:
-    """Geometry of the owned triangles of ``fm.msh`` and of their faces (local)."""
-    msh = fm.msh
-    n = msh.topology.index_map(2).size_local
-    xc = msh.geometry.x[msh.geometry.dofmaps[0][:n]][:, :, :2]
+def _simplex_volumes(xc: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """Areas of triangles / volumes of tetrahedra with vertices ``xc`` ``(n, d + 1, d)``."""
+    if xc.shape[2] == 2:
+        e1, e2 = xc[:, 1] - xc[:, 0], xc[:, 2] - xc[:, 0]
+        return 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    return np.abs(np.linalg.det(xc[:, 1:] - xc[:, :1])) / 6.0
+
+
+def cell_geometry(msh: dolfinx.mesh.Mesh) -> CellGeometry:
+    """Geometry of the owned simplices of ``msh`` and of their faces (local)."""
+    tdim, gdim = msh.topology.dim, msh.geometry.dim
+    n = msh.topology.index_map(tdim).size_local
+    xc = msh.geometry.x[msh.geometry.dofmaps[0][:n]][:, :, :gdim]
     centroid = xc.mean(axis=1)
-    e1, e2 = xc[:, 1] - xc[:, 0], xc[:, 2] - xc[:, 0]
-    volume = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
-    c2f = msh.topology.connectivity(2, 1).array.reshape(-1, 3)[:n]
-    mid, length, unit = _facet_frames(msh)
+    volume = _simplex_volumes(xc)
+    c2f = msh.topology.connectivity(tdim, tdim - 1).array.reshape(-1, tdim + 1)[:n]
+    mid, measure, unit = _facet_frames(msh)
     offset = mid[c2f] - centroid[:, None, :]
     normal = unit[c2f]
     sign = np.sign(np.einsum("nfi,nfi->nf", offset, normal))
     return CellGeometry(
-        volume, centroid, c2f.astype(np.int32), length[c2f], normal * sign[..., None], offset,
-        mid, length,
+        volume, centroid, c2f.astype(np.int32), measure[c2f], normal * sign[..., None], offset,
+        mid, measure,
     )
 
 
 def facet_vertices(msh: dolfinx.mesh.Mesh, facets: npt.NDArray[np.int32]) -> npt.NDArray:
-    """Topological vertex indices of facets, ``(n, 2)``."""
-    f2v = msh.topology.connectivity(1, 0)
-    return f2v.array.reshape(-1, 2)[facets]
+    """Topological vertex indices of facets, ``(n, d)``."""
+    tdim = msh.topology.dim
+    f2v = msh.topology.connectivity(tdim - 1, 0)
+    return f2v.array.reshape(-1, tdim)[facets]
 
 
 def vertex_coordinates(msh: dolfinx.mesh.Mesh, vertices: npt.NDArray[np.int32]) -> npt.NDArray:
-    """Coordinates ``(n, 2)`` of topological vertices."""
+    """Coordinates ``(n, d)`` of topological vertices."""
+    gdim = msh.geometry.dim
     if len(vertices) == 0:
-        return np.empty((0, 2))
+        return np.empty((0, gdim))
     msh.topology.create_connectivity(0, msh.topology.dim)
     nodes = dolfinx.mesh.entities_to_geometry(msh, 0, np.asarray(vertices, dtype=np.int32))
-    return msh.geometry.x[nodes[:, 0], :2]
+    return msh.geometry.x[nodes[:, 0], :gdim]
 
 
 def owned_cell_values(f: dolfinx.fem.Function) -> npt.NDArray[np.float64]:

@@ -31,6 +31,7 @@ from scipy.sparse.csgraph import connected_components
 
 from poromech.geometry.plane import PlaneGeometry
 from poromech.mesh.generate import MeshArrays
+from poromech.parallel import agree
 
 __all__ = [
     "FractureFaces",
@@ -38,14 +39,36 @@ __all__ = [
     "crack_vertices",
     "create_fractured_mesh",
     "cracked_space",
+    "distribute_mesh",
+    "face_size",
+    "facet_table",
     "fracture_measure",
 ]
 
 #: Subdomain id of the fracture network in the interior facet measure.
 FRACTURE_TAG = 1
 
-#: Local facet ``i`` of a DOLFINx triangle is opposite vertex ``i``.
-_TRIANGLE_FACETS = np.array([[1, 2], [0, 2], [0, 1]])
+#: DOLFINx cell names by number of vertices of a simplex cell.
+_SIMPLEX = {3: "triangle", 4: "tetrahedron"}
+
+
+def facet_table(cell: str) -> npt.NDArray[np.int64]:
+    """Local vertices of each facet of a reference cell, ``(facets, vertices per facet)``.
+
+    From basix: on simplices facet ``i`` is opposite vertex ``i``.
+    """
+    topology = basix.topology(basix.CellType[cell])
+    return np.array(topology[len(topology) - 2], dtype=np.int64)
+
+
+def face_size(msh: dolfinx.mesh.Mesh):
+    """``h_σ``, the diameter of a facet, as a UFL expression (restrict it on interior facets).
+
+    The facet's length in 2D, its longest edge in 3D.
+    """
+    if msh.topology.dim == 2:
+        return ufl.FacetArea(msh)
+    return ufl.MaxFacetEdgeLength(msh)
 
 
 def crack_vertices(
@@ -58,12 +81,14 @@ def crack_vertices(
         fracture_facets: Nodes of the fracture faces, ``(num_faces, 2)``.
         num_nodes: Number of mesh nodes.
 
+    (Triangles: the local facets and the pair key are those of a 2D mesh.)
+
     Returns:
         The cells in cracked vertex numbering (copy 0 of a node keeps the node number, further
         copies are numbered from ``num_nodes`` on) and the number of cracked vertices.
     """
     nc = len(cells)
-    edges = cells[:, _TRIANGLE_FACETS]  # (nc, 3, 2) node pairs, local facet order
+    edges = cells[:, facet_table("triangle")]  # (nc, 3, 2) node pairs, local facet order
     lo, hi = edges.min(axis=2).ravel(), edges.max(axis=2).ravel()
     key = lo * num_nodes + hi
     fkey = np.sort(fracture_facets, axis=1)
@@ -108,9 +133,12 @@ class FractureFaces:
         fracture: Fracture index of each face.
         segment: Polyline segment of each face.
         s: Arc length of the face midpoint from the fracture's first point (m).
-        midpoint: Face midpoints, ``(n, 2)`` (m).
-        normal: ``n⁺`` of each face, ``(n, 2)``.
-        length: Face length ``h_σ`` (m).
+        midpoint: Face midpoints, ``(n, d)`` (m).
+        normal: ``n⁺`` of each face, ``(n, d)``.
+        tangents: The tangent frame of each face, ``(n, d - 1, d)``: in 2D ``τ = (n_y, -n_x)``,
+            along the polyline; in 3D the two tangents of the face's planar fracture.
+        measure: ``|σ|``, the length (2D) or area (3D) of each face (m, m²).
+        diameter: ``h_σ``, the diameter of each face (its length in 2D, longest edge in 3D).
         plus: ``(cell, local facet)`` on the ``+`` side (``n⁺`` points out of it), ``(n, 2)``.
         minus: ``(cell, local facet)`` on the ``-`` side, ``(n, 2)``.
     """
@@ -122,7 +150,9 @@ class FractureFaces:
     s: npt.NDArray[np.float64]
     midpoint: npt.NDArray[np.float64]
     normal: npt.NDArray[np.float64]
-    length: npt.NDArray[np.float64]
+    tangents: npt.NDArray[np.float64]
+    measure: npt.NDArray[np.float64]
+    diameter: npt.NDArray[np.float64]
     plus: npt.NDArray[np.int32]
     minus: npt.NDArray[np.int32]
 
@@ -215,7 +245,7 @@ def _facet_sides(msh, facets, normals):
     tdim = msh.topology.dim
     f2c = msh.topology.connectivity(tdim - 1, tdim)
     c2f = msh.topology.connectivity(tdim, tdim - 1)
-    x = msh.geometry.x[:, :2]
+    x = msh.geometry.x[:, :msh.geometry.dim]
     gdofs = msh.geometry.dofmaps[0]
     fv = dolfinx.mesh.entities_to_geometry(msh, tdim - 1, facets)
     mid = x[fv].mean(axis=1)
@@ -243,7 +273,8 @@ def _cracked_topology(msh, cracked_rows, orig_cells_rows):
     cracked = np.take_along_axis(cracked_rows, pos, axis=1)
     # Process-boundary vertices: those on facets that appear once among owned cells
     owned = cracked[: imap.size_local]
-    fac = np.sort(owned[:, _TRIANGLE_FACETS].reshape(-1, 2), axis=1)
+    table = facet_table(msh.topology.cell_name())
+    fac = np.sort(owned[:, table].reshape(-1, table.shape[1]), axis=1)
     uniq, counts = np.unique(fac, axis=0, return_counts=True)
     boundary_vertices = np.unique(uniq[counts == 1])
     orig = np.asarray(msh.topology.original_cell_index, dtype=np.int64)[:num_local]
@@ -280,9 +311,11 @@ def create_fractured_mesh(
     if root:
         cracked_rows, _ = crack_vertices(arrays.cells, arrays.fracture_facets, len(arrays.x))
         face_data = (arrays.fracture_id, arrays.fracture_segment, arrays.fracture_s)
+        shape = (arrays.cells.shape[1], arrays.x.shape[1])
     else:
-        cracked_rows, face_data = None, None
+        cracked_rows, face_data, shape = None, None, None
     fid, fseg, fs = comm.bcast(face_data, root=0)
+    nv, gdim = comm.bcast(shape, root=0)  # vertices per cell, coordinates per point
     if owner is not None or comm.size > 1:
         owner = comm.bcast(owner if root else None, root=0)
     partitioner = (
@@ -290,9 +323,9 @@ def create_fractured_mesh(
         if owner is not None
         else dolfinx.mesh.create_cell_partitioner(dolfinx.mesh.GhostMode.shared_facet, 2)
     )
-    element = basix.ufl.element("Lagrange", "triangle", 1, shape=(2,))
-    cells = arrays.cells if root else np.empty((0, 3), dtype=np.int64)
-    x = arrays.x if root else np.empty((0, 2), dtype=np.float64)
+    element = basix.ufl.element("Lagrange", _SIMPLEX[nv], 1, shape=(gdim,))
+    cells = arrays.cells if root else np.empty((0, nv), dtype=np.int64)
+    x = arrays.x if root else np.empty((0, gdim), dtype=np.float64)
     msh = dolfinx.mesh.create_mesh(comm, cells, ufl.Mesh(element), x, partitioner)
     tdim = msh.topology.dim
     msh.topology.create_entities(tdim - 1)
@@ -306,31 +339,23 @@ def create_fractured_mesh(
     orig_rows = _scatter_rows(comm, arrays.cells if root else None, orig)
     cracked, cracked_cells = _cracked_topology(msh, cracked_local, orig_rows)
 
-    empty2 = np.empty((0, 2), dtype=np.int64)
-    ffacets = arrays.fracture_facets if root else empty2
+    no_facets = np.empty((0, tdim), dtype=np.int64)
+    ffacets = arrays.fracture_facets if root else no_facets
     findex = np.arange(len(ffacets), dtype=np.int32)
     facets, index = _local_entities(msh, tdim - 1, ffacets, findex)
     facets_all = np.sort(facets).astype(np.int32)
     num_owned = msh.topology.index_map(tdim - 1).size_local
     own = facets < num_owned
     facets, index = facets[own], index[own].astype(np.int64)
-    normals = np.empty((len(facets), 2))
-    for k, pts in enumerate(geometry.fractures):
-        t = np.diff(pts, axis=0)
-        t /= np.linalg.norm(t, axis=1)[:, None]
-        sel = fid[index] == k
-        seg = fseg[index[sel]]
-        normals[sel] = np.column_stack([-t[seg, 1], t[seg, 0]])
+    normals = geometry.face_normals(fid[index], fseg[index])
     mid, plus, minus = _facet_sides(msh, facets, normals)
-    fv = dolfinx.mesh.entities_to_geometry(msh, tdim - 1, facets)
-    xg = msh.geometry.x[:, :2]
-    length = np.linalg.norm(xg[fv[:, 1]] - xg[fv[:, 0]], axis=1) if len(facets) else np.empty(0)
+    measure, diameter = _facet_sizes(msh, facets)
     faces = FractureFaces(
         facets.astype(np.int32), index, fid[index], fseg[index], fs[index], mid, normals,
-        length, plus, minus,
+        geometry.face_tangents(normals), measure, diameter, plus, minus,
     )
 
-    bf = arrays.boundary_facets if root else empty2
+    bf = arrays.boundary_facets if root else no_facets
     be = arrays.boundary_edge if root else np.empty(0, dtype=np.int32)
     bfacets, bedge = _local_entities(msh, tdim - 1, bf, be)
     own = bfacets < num_owned
@@ -341,18 +366,60 @@ def create_fractured_mesh(
     )
 
 
-def cracked_space(fm: FracturedMesh, degree: int, shape: tuple[int, ...] = (2,)):
+def _facet_sizes(msh, facets) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """``|σ|`` (length or area) and diameter (longest edge) of simplex facets (local)."""
+    tdim, gdim = msh.topology.dim, msh.geometry.dim
+    if len(facets) == 0:
+        return np.empty(0), np.empty(0)
+    xg = msh.geometry.x[:, :gdim]
+    fv = dolfinx.mesh.entities_to_geometry(msh, tdim - 1, facets)
+    if tdim == 2:
+        length = np.linalg.norm(xg[fv[:, 1]] - xg[fv[:, 0]], axis=1)
+        return length, length
+    a, b, c = xg[fv[:, 0]], xg[fv[:, 1]], xg[fv[:, 2]]
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    edges = np.stack([b - a, c - b, a - c], axis=1)
+    return area, np.linalg.norm(edges, axis=2).max(axis=1)
+
+
+def distribute_mesh(comm: MPI.Comm, geometry: PlaneGeometry,
+                    make_arrays: Callable[[], MeshArrays], owner=None) -> FracturedMesh:
+    """Make the mesh arrays on rank 0 (gmsh, a mesh file) and distribute them (collective).
+
+    Args:
+        comm: Communicator.
+        geometry: The geometry the arrays refer to (on every rank).
+        make_arrays: Called on rank 0 only; an exception it raises is raised on every rank.
+        owner: The rank of every input cell (an array given on rank 0), or a callable of the
+            cell centroids ``(n, d)`` returning it, to impose a partition (tests that put a
+            process boundary on a fracture); None: the default partitioner.
+    """
+    arrays, ranks, err = None, None, None
+    if comm.rank == 0:
+        try:
+            arrays = make_arrays()
+            ranks = owner(arrays.x[arrays.cells].mean(axis=1)) if callable(owner) else owner
+        except Exception as e:  # noqa: BLE001  (re-raised on every rank by agree)
+            err = e
+    agree(comm, err)
+    if ranks is not None:
+        ranks = np.asarray(ranks, dtype=np.int32)
+    return create_fractured_mesh(comm, geometry, arrays, owner=ranks)
+
+
+def cracked_space(fm: FracturedMesh, degree: int, shape: tuple[int, ...] | None = None):
     """Lagrange space on ``fm.msh`` whose dofs are duplicated across the fractures (collective).
 
     Args:
         fm: The fractured mesh.
         degree: Polynomial degree (1 or 2).
-        shape: Value shape, ``(2,)`` for displacements.
+        shape: Value shape; default ``(d,)``, displacements.
 
     Returns:
         A :class:`dolfinx.fem.FunctionSpace` with the cracked dofmap.
     """
     msh = fm.msh
+    shape = (msh.geometry.dim,) if shape is None else shape
     ufl_e = basix.ufl.element("Lagrange", msh.basix_cell(), degree, shape=shape,
                               dtype=msh.geometry.x.dtype)
     element = dolfinx.fem.finiteelement(msh.topology.cell_type, ufl_e, msh.geometry.x.dtype)

@@ -1,7 +1,7 @@
 """Safe, vectorized scalar expressions of space and time used in scene files.
 
 A scene value may be a number or a string such as ``"0.005*min(4*t/T, 1)"``. Strings are
-parsed once with :mod:`ast`; only arithmetic, comparisons, the names ``x``, ``y``, ``t``,
+parsed once with :mod:`ast`; only arithmetic, comparisons, the names ``x``, ``y``, ``z``, ``t``,
 named scene parameters and a fixed set of NumPy functions are allowed. Nothing is passed to
 ``eval`` and no attribute access or call of an unknown name is possible.
 """
@@ -19,8 +19,10 @@ import numpy.typing as npt
 
 __all__ = ["Expression", "ExpressionError", "compile_expression", "function_signatures"]
 
-#: Variables every expression may use: coordinates (m) and time (s).
-VARIABLES = ("x", "y", "t")
+#: Variables every expression may use: coordinates (m) and time (s); ``z`` is 0 in 2D scenes.
+VARIABLES = ("x", "y", "z", "t")
+#: The coordinates among :data:`VARIABLES`, in the order of the columns of evaluation points.
+COORDINATES = ("x", "y", "z")
 
 def _analytic_functions() -> dict[str, Callable]:
     """Exact plane-strain displacement fields (``poromech.analytic``) usable in expressions."""
@@ -217,7 +219,10 @@ def _evaluate(node: ast.AST, env: Mapping[str, object]):
 
 @dataclass(frozen=True)
 class Expression:
-    """A scalar field ``f(x, y, t)`` given by a number or a checked expression string.
+    """A scalar field ``f(x, y, z, t)`` given by a number or a checked expression string.
+
+    Evaluated at points ``(n, d)`` (``d`` = 1, 2 or 3 columns ``x, y, z``; a missing coordinate
+    is 0) and a time.
 
     Attributes:
         source: The text as written in the scene (or the number).
@@ -229,7 +234,7 @@ class Expression:
 
     @property
     def is_constant(self) -> bool:
-        """True when the value does not depend on x, y or t."""
+        """True when the value does not depend on x, y, z or t."""
         if not isinstance(self.source, str):
             return True
         tree = _parse(self.source)
@@ -237,11 +242,11 @@ class Expression:
 
     @property
     def is_uniform(self) -> bool:
-        """True when the value does not depend on x or y (it may depend on t)."""
+        """True when the value does not depend on x, y or z (it may depend on t)."""
         if not isinstance(self.source, str):
             return True
         tree = _parse(self.source)
-        return not any(isinstance(n, ast.Name) and n.id in ("x", "y") for n in ast.walk(tree))
+        return not any(isinstance(n, ast.Name) and n.id in COORDINATES for n in ast.walk(tree))
 
     @property
     def depends_on_time(self) -> bool:
@@ -251,22 +256,26 @@ class Expression:
         tree = _parse(self.source)
         return any(isinstance(n, ast.Name) and n.id == "t" for n in ast.walk(tree))
 
-    def __call__(
-        self, x: npt.ArrayLike, y: npt.ArrayLike = 0.0, t: float = 0.0
-    ) -> npt.NDArray[np.float64]:
-        """Evaluate at points ``(x, y)`` and time ``t``, broadcasting to the shape of ``x``."""
-        x = np.asarray(x, dtype=np.float64)
+    def __call__(self, points: npt.ArrayLike, t: float = 0.0) -> npt.NDArray[np.float64]:
+        """Values at points ``(n, d)`` and time ``t``: an array of ``n`` values.
+
+        A DOLFINx interpolation passes ``x`` of shape ``(3, n)``: give ``x.T``.
+        """
+        points = np.asarray(points, dtype=np.float64)
+        n = points.shape[0]
         if not isinstance(self.source, str):
-            return np.full(x.shape, float(self.source))
+            return np.full(n, float(self.source))
         env = dict(self.parameters)
-        env.update(x=x, y=np.asarray(y, dtype=np.float64), t=float(t))
+        for k, name in enumerate(COORDINATES):
+            env[name] = points[:, k] if k < points.shape[1] else np.zeros(n)
+        env["t"] = float(t)
         with np.errstate(all="ignore"):
             value = _evaluate(_parse(self.source), env)
-        return np.broadcast_to(np.asarray(value, dtype=np.float64), x.shape).copy()
+        return np.broadcast_to(np.asarray(value, dtype=np.float64), (n,)).copy()
 
     def value(self, t: float = 0.0) -> float:
         """The value of a space-independent expression at time ``t``."""
-        return float(self(np.zeros(1), np.zeros(1), t)[0])
+        return float(self(np.zeros((1, 2)), t)[0])
 
 
 def compile_expression(
@@ -275,7 +284,7 @@ def compile_expression(
     """Check an expression and return it as an :class:`Expression`.
 
     Args:
-        source: A number or an expression string in ``x``, ``y``, ``t`` and parameters.
+        source: A number or an expression string in ``x``, ``y``, ``z``, ``t`` and parameters.
         parameters: Named constants (scene ``parameters:``) the expression may use.
 
     Raises:
@@ -305,7 +314,7 @@ def compile_expression(
                               "formula")
     _check(tree, set(VARIABLES) | {k for k, _ in params})
     expr = Expression(source.strip(), params)
-    sample = expr(np.array([0.3]), np.array([0.7]), 0.5)
+    sample = expr(np.array([[0.3, 0.7, 0.2]]), 0.5)
     if sample.shape != (1,):
         raise ExpressionError(f"{source!r} does not evaluate to a scalar field")
     return expr

@@ -55,6 +55,10 @@ _FRACTURE_FIELDS = {
 }
 
 
+#: The two end vertices of each edge of a triangle and of a tetrahedron (local numbering).
+_EDGES = {2: ([1, 2, 0], [2, 0, 1]), 3: ([0, 0, 0, 1, 1, 2], [1, 2, 3, 2, 3, 3])}
+
+
 @dataclass(frozen=True)
 class _Points:
     """Evaluation points of this rank's owned entities (m)."""
@@ -81,24 +85,30 @@ class _Points:
 def _mesh_points(fm: FracturedMesh) -> _Points:
     """The points of every check on this rank (local)."""
     msh = fm.msh
-    x = msh.geometry.x[:, :2]
-    nc = msh.topology.index_map(2).size_local
-    cells = x[msh.geometry.dofmaps[0][:nc]]  # (nc, 3, 2)
-    edges = 0.5 * (cells[:, [1, 2, 0]] + cells[:, [2, 0, 1]])
-    nf = msh.topology.index_map(1).size_local
-    facets = x[dolfinx.mesh.entities_to_geometry(msh, 1, np.arange(nf, dtype=np.int32))]
-    bnd = x[dolfinx.mesh.entities_to_geometry(msh, 1, fm.boundary_facets)]
-    frac = x[dolfinx.mesh.entities_to_geometry(msh, 1, fm.fractures.facets)]
+    tdim, d = msh.topology.dim, msh.geometry.dim
+    x = msh.geometry.x[:, :d]
+    nc = msh.topology.index_map(tdim).size_local
+    cells = x[msh.geometry.dofmaps[0][:nc]]  # (nc, d + 1, d)
+    a, b = _EDGES[tdim]
+    edges = 0.5 * (cells[:, a] + cells[:, b])
+    nf = msh.topology.index_map(tdim - 1).size_local
+
+    def facet_points(facets):
+        return x[dolfinx.mesh.entities_to_geometry(msh, tdim - 1, facets)]
+
+    facets = facet_points(np.arange(nf, dtype=np.int32))
+    bnd = facet_points(fm.boundary_facets)
+    frac = facet_points(fm.fractures.facets)
     return _Points(
         centroids=cells.mean(axis=1),
-        cell_nodes=cells.reshape(-1, 2),
-        cell_edge_midpoints=edges.reshape(-1, 2),
+        cell_nodes=cells.reshape(-1, d),
+        cell_edge_midpoints=edges.reshape(-1, d),
         facet_midpoints=facets.mean(axis=1),
-        boundary_vertices=(bnd.reshape(-1, 2), np.repeat(fm.boundary_edge, 2)),
+        boundary_vertices=(bnd.reshape(-1, d), np.repeat(fm.boundary_edge, tdim)),
         boundary_midpoints=(bnd.mean(axis=1), fm.boundary_edge),
         face_midpoints=fm.fractures.midpoint,
         face_fracture=fm.fractures.fracture,
-        face_ends=frac.reshape(-1, 2),
+        face_ends=frac.reshape(-1, d),
     )
 
 

@@ -1,9 +1,9 @@
 """The scene: a frozen, validated description of one simulation.
 
-Every field carries its unit, default and meaning in its metadata; ``poromech.scene`` builds
-these classes from YAML (rejecting unknown keys and wrong types) and ``docs/scene_schema.md`` is
-generated from them. Expressions (``Expr``) are numbers or strings in ``x``, ``y``, ``t`` and the
-scene ``parameters``.
+Every field carries its unit, default and meaning in its metadata; :mod:`poromech.scene.builder`
+builds these classes from YAML (rejecting unknown keys and wrong types) and
+``docs/scene_schema.md`` is generated from them. Expressions (``Expr``) are numbers or strings in
+``x``, ``y``, ``z``, ``t`` and the scene ``parameters``.
 """
 
 from __future__ import annotations

@@ -136,7 +136,7 @@ def check_expression(expr: Expression | None, points: np.ndarray, path: str,
         return
     pts = points[:1] if expr.is_uniform else points
     for t in (times if expr.depends_on_time else times[:1]):
-        values = expr(pts[:, 0], pts[:, 1], t)
+        values = expr(pts, t)
         check_values(values, pts, path, expr, meta, t if expr.depends_on_time else None, what)
 
 
@@ -150,7 +150,7 @@ def check_permeability(perm, points: np.ndarray, times, what: str = "") -> None:
     x, y = points[:, 0], points[:, 1]
     steps = times if any(e.depends_on_time for e in perm) else times[:1]
     for t in steps:
-        k = [np.broadcast_to(e(x, y, t), x.shape) for e in perm]
+        k = [e(points, t) for e in perm]
         kxx, kyy = k[0], k[-1]
         det = kxx * kyy - (k[1] ** 2 if len(k) == 3 else 0.0)
         bad = ~(np.isfinite(det) & (kxx > 0) & (kyy > 0) & (det > 0))

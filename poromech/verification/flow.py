@@ -25,9 +25,9 @@ from poromech.flow.problem import DarcyProblem, FlowProperties, TimeStep
 from poromech.flow.setup import problem_from_scene
 from poromech.geometry.plane import PlaneGeometry
 from poromech.io.probes import LineSampler
-from poromech.mesh.fractured import FracturedMesh, create_fractured_mesh
+from poromech.mesh.fractured import FracturedMesh, distribute_mesh
 from poromech.mesh.generate import MeshSizes, generate_mesh
-from poromech.scene.geometry import plane_geometry
+from poromech.scene.geometry import mesh_sizes, plane_geometry
 from poromech.scene.loading import load_scene
 from poromech.scene.schema import Scene
 
@@ -37,12 +37,11 @@ __all__ = [
     "JumpSolution",
     "barrier_metrics",
     "barrier_scene",
-    "build_mesh",
     "line_pressure",
-    "mesh_with_sizes",
     "observed_orders",
     "rectangle",
     "solve_scene",
+    "uniform_mesh",
 ]
 
 Array = npt.NDArray[np.float64]
@@ -56,8 +55,8 @@ def rectangle(x0: float, y0: float, x1: float, y1: float, fractures=()) -> Plane
                          tuple(f"f{i}" for i in range(len(fr))))
 
 
-def build_mesh(comm: MPI.Comm, geo: PlaneGeometry, size: float, refinement: int = 0,
-               owner=None) -> FracturedMesh:
+def uniform_mesh(comm: MPI.Comm, geo: PlaneGeometry, size: float, refinement: int = 0,
+                 owner=None) -> FracturedMesh:
     """Mesh ``geo`` with a uniform target size and ``refinement`` splits (collective).
 
     Args:
@@ -67,22 +66,8 @@ def build_mesh(comm: MPI.Comm, geo: PlaneGeometry, size: float, refinement: int 
         refinement: Uniform refinement level.
         owner: Optional callable ``owner(centroids) -> ranks`` imposing the partition.
     """
-    return mesh_with_sizes(comm, geo, MeshSizes(size, size, size, size, refinement), owner)
-
-
-def mesh_with_sizes(comm: MPI.Comm, geo: PlaneGeometry, sizes: MeshSizes,
-                    owner=None) -> FracturedMesh:
-    """Mesh ``geo`` on rank 0 and distribute it, optionally with an imposed partition.
-
-    Collective. ``owner(centroids) -> ranks`` places the input cells.
-    """
-    arrays = None
-    ranks = None
-    if comm.rank == 0:
-        arrays = generate_mesh(geo, sizes)
-        if owner is not None:
-            ranks = np.asarray(owner(arrays.x[arrays.cells].mean(axis=1)), dtype=np.int32)
-    return create_fractured_mesh(comm, geo, arrays, owner=ranks)
+    sizes = MeshSizes(size, size, size, size, refinement)
+    return distribute_mesh(comm, geo, lambda: generate_mesh(geo, sizes), owner)
 
 
 def l2(comm: MPI.Comm, weights: Array, values: Array) -> float:
@@ -123,28 +108,29 @@ class JumpSolution:
         """``(-1, 1) × (0, 1)`` with the fracture ``{x = 0}``."""
         return rectangle(-1.0, 0.0, 1.0, 1.0, [[[0.0, 0.0], [0.0, 1.0]]])
 
-    def p_m(self, x, y, t=0.0):
-        """Matrix pressure (Pa)."""
+    def p_m(self, points, t=0.0):
+        """Matrix pressure (Pa) at points ``(n, 2)``."""
+        x, y = points[:, 0], points[:, 1]
         left = self.a - self.T_f * (self.a - 1) * x + x**2
         right = self.c + self.T_f * (self.c - 1) * x + x**2
         return np.cos(np.pi * y) * np.where(x < 0, left, right)
 
-    def p_f(self, x, y, t=0.0):
-        """Fracture pressure (Pa)."""
-        return np.cos(np.pi * y)
+    def p_f(self, points, t=0.0):
+        """Fracture pressure (Pa) at points ``(n, 2)``."""
+        return np.cos(np.pi * points[:, 1])
 
-    def source(self, x, y, t=0.0):
+    def source(self, points, t=0.0):
         """``q = -Δp_m`` (1/s)."""
-        return np.pi**2 * self.p_m(x, y) - 2.0 * np.cos(np.pi * y)
+        return np.pi**2 * self.p_m(points) - 2.0 * np.cos(np.pi * points[:, 1])
 
-    def fracture_source(self, x, y, t=0.0):
+    def fracture_source(self, points, t=0.0):
         """``q_f = -C_f p_f'' - T_f (p⁺ - p_f) - T_f (p⁻ - p_f)`` (m/s)."""
-        g = np.cos(np.pi * y)
+        g = np.cos(np.pi * points[:, 1])
         return self.C_f * np.pi**2 * g - self.T_f * g * (self.a + self.c - 2.0)
 
     def problem(self, fm: FracturedMesh, **kwargs) -> DarcyProblem:
         """The HFV problem of this solution on ``fm`` (collective)."""
-        nc = fm.msh.topology.index_map(2).size_local
+        nc = fm.msh.topology.index_map(fm.msh.topology.dim).size_local
         nf = len(fm.fractures.facets)
         nan = np.full(nf, np.nan)
         props = FlowProperties(
@@ -164,11 +150,11 @@ class JumpSolution:
         exact_traces = np.column_stack([self.c * np.cos(np.pi * y), self.a * np.cos(np.pi * y)])
         ends = problem.dofs.points[problem.dofs.node]
         return {
-            "cell": l2(comm, g.volume, problem.cell_pressure - self.p_m(*g.centroid.T)),
-            "trace": l2(comm, f.length[:, None], problem.trace_pressure - exact_traces),
-            "fracture": l2(comm, f.length, problem.fracture_pressure - self.p_f(0.0, y)),
-            "node": l2(comm, 0.5 * f.length[:, None],
-                       problem.node_pressure - self.p_f(0.0, ends[..., 1])),
+            "cell": l2(comm, g.volume, problem.cell_pressure - self.p_m(g.centroid)),
+            "trace": l2(comm, f.measure[:, None], problem.trace_pressure - exact_traces),
+            "fracture": l2(comm, f.measure, problem.fracture_pressure - self.p_f(f.midpoint)),
+            "node": l2(comm, 0.5 * f.measure[:, None],
+                       problem.node_pressure - self.p_f(ends.reshape(-1, 2)).reshape(-1, 2)),
         }
 
 
@@ -197,9 +183,9 @@ class Diffusion1D:
         """Decay rate ``λ`` (1/s)."""
         return self.mobility * np.pi**2 / (self.storage * self.length**2)
 
-    def pressure(self, x, y, t=0.0):
-        """The exact pressure (Pa)."""
-        return self.amplitude * np.exp(-self.rate * t) * np.sin(np.pi * x / self.length)
+    def pressure(self, points, t=0.0):
+        """The exact pressure (Pa) at points ``(n, 2)``."""
+        return self.amplitude * np.exp(-self.rate * t) * np.sin(np.pi * points[:, 0] / self.length)
 
     def geometry(self) -> PlaneGeometry:
         """The strip ``(0, L) × (0, H)``."""
@@ -207,14 +193,14 @@ class Diffusion1D:
 
     def problem(self, fm: FracturedMesh, **kwargs) -> DarcyProblem:
         """The HFV problem with storage on ``fm`` (collective)."""
-        nc = fm.msh.topology.index_map(2).size_local
+        nc = fm.msh.topology.index_map(fm.msh.topology.dim).size_local
         empty = np.zeros(0)
         props = FlowProperties(
             permeability=isotropic_tensor(np.full(nc, self.mobility)), viscosity=1.0,
             aperture=empty, fracture_permeability=empty, normal_permeability=empty,
             conductivity=empty, storage=np.full(nc, self.storage),
         )
-        zero = FlowBoundary("ends", (1, 3), "pressure", lambda x, y, t: np.zeros_like(x))
+        zero = FlowBoundary("ends", (1, 3), "pressure", lambda x, t: np.zeros(len(x)))
         return DarcyProblem(fm, props, [zero], **kwargs)
 
     def run(self, problem: DarcyProblem, final: float, steps: int) -> float:
@@ -228,7 +214,7 @@ class Diffusion1D:
             problem.solve(n * dt, step)
             phi_prev = problem.porosity(step)
         g = problem.geom
-        exact = self.pressure(*g.centroid.T, final)
+        exact = self.pressure(g.centroid, final)
         comm = problem.comm
         return l2(comm, g.volume, problem.cell_pressure - exact) / l2(comm, g.volume, exact)
 
@@ -262,11 +248,8 @@ def solve_scene(scene: Scene, comm: MPI.Comm, owner=None) -> DarcyProblem:
 
     ``owner(centroids) -> ranks`` optionally imposes the partition.
     """
-    from poromech.scene.geometry import (
-        mesh_sizes,  # the scene's sizes with their documented defaults
-    )
-
-    fm = mesh_with_sizes(comm, plane_geometry(scene), mesh_sizes(scene), owner)
+    geo, sizes = plane_geometry(scene), mesh_sizes(scene)
+    fm = distribute_mesh(comm, geo, lambda: generate_mesh(geo, sizes), owner)
     problem = problem_from_scene(scene, fm)
     problem.solve(0.0)
     return problem

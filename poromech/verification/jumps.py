@@ -42,7 +42,7 @@ class FaceQuadrature:
         s = 0.5 * (g + 1)
         a, b = ends[:, 0], ends[:, 1]
         self.points = (a[:, None, :] + s[None, :, None] * (b - a)[:, None, :]).reshape(-1, 2)
-        self.weights = (0.5 * w[None, :] * faces.length[:, None]).ravel()
+        self.weights = (0.5 * w[None, :] * faces.measure[:, None]).ravel()
         self.plus = np.repeat(faces.plus[:, 0], npoints)
         self.minus = np.repeat(faces.minus[:, 0], npoints)
         self.normal = np.repeat(faces.normal, npoints, axis=0)
