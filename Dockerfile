@@ -32,12 +32,15 @@ RUN mkdir -p /tmp/stub/DEBIAN \
 # MPIR_CVAR_CH4_CMA_ENABLE=0: MPICH's shared-memory transfers without process_vm_readv, which
 # Docker's default seccomp profile forbids (mpirun -n 2 would die). HOME and the FEniCS JIT cache
 # ($XDG_CACHE_HOME/fenics) are world-writable, so that any --user uid can run the image.
+# The image runs as the unprivileged user poromech (uid 1000) by default, so that outputs on a bind
+# mount are not owned by root; any other --user uid works as well.
 ENV MPIR_CVAR_CH4_CMA_ENABLE=0 \
     HOME=/home/poromech \
     XDG_CACHE_HOME=/home/poromech/.cache \
     PIP_DISABLE_PIP_VERSION_CHECK=1 \
     PIP_NO_CACHE_DIR=1
-RUN mkdir -p "$XDG_CACHE_HOME" && chmod -R 1777 "$HOME"
+RUN useradd --uid 1000 --user-group --no-create-home --home-dir "$HOME" --shell /bin/bash poromech \
+    && mkdir -p "$XDG_CACHE_HOME" && chmod -R 1777 "$HOME"
 
 # ---- build: /opt/venv with the runtime dependencies, every version from constraints.txt.
 # Pip's CA bundle, where a machine needs one, is a build secret (never stored in a layer):
@@ -66,19 +69,23 @@ ENV PATH=/opt/venv/bin:$PATH
 ARG PRECOMPILE_ARGS="--set time.steps=1"
 RUN poromech run ${PRECOMPILE_ARGS} -q -o /tmp/precompile \
     && rm -rf /tmp/precompile \
-    && chmod -R a+rwX "$XDG_CACHE_HOME"
+    && chmod -R a+rwX "$XDG_CACHE_HOME" \
+    && mkdir -p /work && chmod 1777 /work
 WORKDIR /work
+USER poromech
 ENTRYPOINT ["poromech"]
 CMD ["run"]
 
 # ---- test: the runtime image plus the source tree and the test extras (pytest)
 FROM runtime AS test
+USER root
 WORKDIR /opt/poromech
 COPY . .
 RUN --mount=type=secret,id=pip_cert \
     if [ -s /run/secrets/pip_cert ]; then export PIP_CERT=/run/secrets/pip_cert; fi \
     && pip install --quiet -c constraints.txt --no-build-isolation -e ".[test]" \
     && chmod -R a+rwX /opt/poromech
+USER poromech
 ENTRYPOINT []
 CMD ["python", "-m", "pytest"]
 

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
-# Build the poromech image and check that it runs what the README says (issue 10):
+# Build the poromech image and check that it runs what the README says:
 #   * the runtime image builds, from the pinned python:3.12-slim-bookworm or, where Docker Hub
 #     cannot be reached, from a local stand-in for it (built here, see build_standin);
+#   * without --user it runs as the unprivileged user poromech (uid 1000), not as root;
 #   * as a non-root --user, with the working directory bind-mounted at /work: the default scene
 #     (its forms must come from the image's cache: none compiled at run time), a mechanics scene
 #     (configs/sneddon.yaml, fractures.csv compared with a native run), a flow scene
@@ -173,6 +174,15 @@ else
     tail -30 "$WORK/build.log" >&2
     record "build runtime image" "docker build -t $IMAGE ." "FAIL" "$(secs "$t0" "$(now)") s"
     exit 1
+fi
+
+# ---- the default user: unprivileged
+t0=$(now)
+who=$("$DOCKER" run --rm --entrypoint id "$IMAGE" -un 2>&1)/$("$DOCKER" run --rm --entrypoint id "$IMAGE" -u 2>&1)
+if [[ $who == poromech/1000 ]]; then
+    record "default user" "docker run --rm --entrypoint id $IMAGE" "pass, $who (not root)" "$(secs "$t0" "$(now)") s"
+else
+    record "default user" "docker run --rm --entrypoint id $IMAGE" "FAIL ($who)" "$(secs "$t0" "$(now)") s"
 fi
 
 # ---- runs as a non-root user on a bind-mounted working directory

@@ -1,4 +1,4 @@
-"""Issue 7: a conduit crossing a blocking barrier against the same conduit cut short of it.
+"""A conduit crossing a blocking barrier against the same conduit cut short of it.
 
 Runs the three variants of ``configs/flow_barrier_conduit.yaml`` (the conduit crossing the
 barrier; cut 1 mm short of it, ``configs/flow_barrier_conduit_cut.yaml``; the barrier alone) on

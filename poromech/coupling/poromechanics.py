@@ -257,8 +257,9 @@ class Poromechanics:
         w.mechanics_seconds += t1 - t0
         if not rec.converged:
             first = recs[0]
+            what = "contact Newton" if self.model.params.active else "mechanics solve"
             raise EvaluationFailure(
-                f"contact Newton did not converge inside the fixed point: {first.reason} after "
+                f"{what} did not converge inside the fixed point: {first.reason} after "
                 f"{first.iterations} iterations; residual history "
                 + ", ".join(f"{r:.3e}" for r in first.residuals)
                 + (f"; nor by continuation from the last converged pressures ({rec.reason} after "
@@ -485,11 +486,13 @@ class Poromechanics:
         r = result.record
         res = r["residuals"] or [float("nan")]
         face = f", face Newton {r['face_iterations']} it" if r["face_iterations"] else ""
+        # without contact conditions the mechanics is linear: no contact Newton to speak of
+        what = "contact Newton {} it" if self.model.params.active else "mechanics {} solves"
         return (f"step {k + 1}/{n} t={t:g} s: {r['reason']} in {r['iterations']} it, "
                 f"{r['g_evaluations']} g evaluations (|p - g(p)| {res[0]:.2e} -> {res[-1]:.2e}"
                 f"{', the noise of g' if r['converged_at_noise'] else ''}"
                 f"{', by the fallback ' + r['method'] if r['fallback_from'] is not None else ''}); "
-                f"contact Newton {r['newton_iterations']} it{face}, {r['factorizations']} "
+                f"{what.format(r['newton_iterations'])}{face}, {r['factorizations']} "
                 f"factorizations; Darcy {r['darcy_iterations']} it")
 
     # -- output ----------------------------------------------------------------------------

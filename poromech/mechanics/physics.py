@@ -205,8 +205,10 @@ class MechanicsPhysics:
         changes = ",".join(str(c) for c in rec["active_set_changes"]) or "-"
         res = rec["residuals"] or [float("nan")]
         face = f" (+{rec['face_iterations']} face Newton)" if rec.get("face_iterations") else ""
-        return (f"step {k + 1}/{n} t={t:g} s: {rec['reason']} in {rec['iterations']} Newton "
-                f"it{face} "
+        # without contact conditions the problem is linear: one solve, no Newton to speak of
+        what = "Newton it" if self.model.params.active else "linear solve"
+        return (f"step {k + 1}/{n} t={t:g} s: {rec['reason']} in {rec['iterations']} {what}"
+                f"{face} "
                 f"(|F| {res[0]:.2e} -> {res[-1]:.2e}), active-set changes {changes}, "
                 f"{rec['factorizations']} factorizations")
 

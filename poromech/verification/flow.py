@@ -4,7 +4,7 @@
   ``Ω = (-1, 1) × (0, 1)`` with the fracture ``{x = 0}``;
 * :class:`Diffusion1D`: decay of a sine mode with storage, ``s ∂p/∂t = (k/η) ∂²p/∂x²``;
 * discrete L² norms over owned cells and fracture faces, reduced over the communicator;
-* the blocking-intersection scenes of issue 7 (``configs/flow_barrier_conduit*.yaml``): a
+* the blocking-intersection scenes (``configs/flow_barrier_conduit*.yaml``): a
   barrier crossed by a conduit, the conduit cut short of it, the barrier alone
   (:data:`BARRIER_VARIANTS`, :func:`barrier_metrics`).
 """
@@ -223,8 +223,8 @@ class Diffusion1D:
 BARRIER_ONLY = ("geometry={domain: {rectangle: [0.0, 0.0, 1.0, 1.0]}, "
                 "fractures: [{name: barrier, points: [[0.5, 0.0], [0.5, 1.0]]}]}")
 
-#: Issue 7 variants: scene file in ``configs/`` and overrides. ``crossing``: the conduit crosses
-#: the barrier (X junction); ``cut``: the conduit stops 1 mm short of it on both sides;
+#: Barrier-conduit variants: scene file in ``configs/`` and overrides. ``crossing``: the conduit
+#: crosses the barrier (X junction); ``cut``: the conduit stops 1 mm short of it on both sides;
 #: ``barrier``: no conduit.
 BARRIER_VARIANTS = {
     "crossing": ("flow_barrier_conduit.yaml", ()),
@@ -237,7 +237,7 @@ JUMP_OFFSET = 1e-4
 
 
 def barrier_scene(variant: str, refinement: int = 0, overrides=()) -> Scene:
-    """A variant of the issue 7 scene (:data:`BARRIER_VARIANTS`) at a refinement level."""
+    """A variant of the barrier-conduit scene (:data:`BARRIER_VARIANTS`) at a refinement level."""
     name, extra = BARRIER_VARIANTS[variant]
     path = importlib.resources.files("poromech.configs").joinpath(name)
     return load_scene(path, [*extra, f"mesh.refinement={refinement}", *overrides])
