@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import ufl
 
-__all__ = ["biot_stress_form", "epsilon", "lame_parameters", "sigma", "elastic_form"]
+__all__ = ["biot_stress_form", "epsilon", "initial_stress_form", "lame_parameters", "sigma",
+           "elastic_form"]
 
 
 def lame_parameters(young, poisson):
@@ -31,6 +32,11 @@ def sigma(u, young, poisson):
 def elastic_form(u, v, young, poisson, dx):
     """Bulk stiffness ``∫_Ω σ(u):ε(v) dx``."""
     return ufl.inner(sigma(u, young, poisson), epsilon(v)) * dx
+
+
+def initial_stress_form(sigma0, v, dx):
+    """Initial (in-situ) stress term ``∫_Ω σ⁰:ε(v) dx`` of the total stress ``σ⁰ + σ(u)``."""
+    return ufl.inner(sigma0, epsilon(v)) * dx
 
 
 def biot_stress_form(p, v, biot, dx):

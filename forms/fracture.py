@@ -141,6 +141,8 @@ class FractureKinematics:
             (the previous time step, for quasi-static friction), or None (static: total jump).
         tangents: The tangent frame of the fracture on its faces (3D: two orthonormal vectors
             per planar fracture); None in 2D, where it is ``τ = (n_y, -n_x)``.
+        initial_stress: The in-situ (total) stress ``σ⁰`` (Pa), a tensor on the cells, or None:
+            the traction is then ``(σ⁰ + σ(u) - b p_m I) n⁺ + p_f n⁺``.
     """
 
     n: ufl.core.expr.Expr
@@ -152,6 +154,7 @@ class FractureKinematics:
     biot: ufl.core.expr.Expr | float = 1.0
     slip_reference: ufl.core.expr.Expr | None = None
     tangents: tuple[ufl.core.expr.Expr, ...] | None = None
+    initial_stress: ufl.core.expr.Expr | None = None
 
     @property
     def frame(self) -> tuple:
@@ -164,9 +167,15 @@ class FractureKinematics:
         side = stress("+") if self.side == "plus" else 0.5 * (stress("+") + stress("-"))
         return ufl.dot(side, self.n)
 
+    def _side(self, f):
+        """``f`` on the side that defines the traction (``+``, or the mean of both)."""
+        return f("+") if self.side == "plus" else 0.5 * (f("+") + f("-"))
+
     def traction(self, u):
-        """Contact traction ``T(u) = (σ(u) - b p_m I) n⁺ + p_f n⁺`` (Pa), after eq. (1) and §3."""
+        """Contact traction ``T(u) = (σ⁰ + σ(u) - b p_m I) n⁺ + p_f n⁺`` (Pa), eq. (1) and §3."""
         t = self.stress_variation(u)
+        if self.initial_stress is not None:
+            t = t + ufl.dot(self._side(self.initial_stress), self.n)
         if self.matrix_pressure is not None:
             pm = self.matrix_pressure
             pm_side = pm("+") if self.side == "plus" else 0.5 * (pm("+") + pm("-"))

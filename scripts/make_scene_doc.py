@@ -174,6 +174,19 @@ def header() -> list[str]:
         "against the PETSc build before meshing; command-line options no solver used are "
         "reported at the end.",
         "",
+        "**No key is ignored** (`poromech/scene/usage.py`): a section of another physics is "
+        "refused (`flow` or `coupling` in a mechanics scene; `material`, `contact`, `solver`, "
+        "`degree`, `boundary_conditions`, `fracture_pressure` or `coupling` in a flow scene). "
+        "A key whose effect depends on another choice and has none under the scene's (e.g. "
+        "`contact.theta` with `mixed`, `contact.beta_n` with `mixed` (which takes `beta_sm_n`), "
+        "`contact.friction_coefficient` without Coulomb friction, `flow.biot_modulus` in a "
+        "steady scene, `mesh.tip_size` without fractures, `flow.aperture` when every fracture "
+        "has its own, a parameter no expression uses) is reported by a one-line warning "
+        "`scene key '...' has no effect: <why>` and the run goes on, so that a scene varied "
+        "with `--set` keeps working. `tests/test_scene_keys.py` walks every key of this "
+        "reference for each physics and checks that it changes the results, or is refused, or "
+        "is reported and changes nothing.",
+        "",
     ]
 
 

@@ -93,8 +93,11 @@ def _walk(a, b, path: str, diffs: list[str]) -> None:
         for k in sorted(set(a) | set(b)):
             if k in VOLATILE or "seconds" in k or k.startswith("time_"):
                 continue
-            if k not in a or k not in b:
-                diffs.append(f"{path}/{k}: only in {'new' if k in b else 'reference'}")
+            if k not in a:  # an output added since the reference: listed, not a difference
+                ADDED.add(f"summary {path}/{k}")
+                continue
+            if k not in b:
+                diffs.append(f"{path}/{k}: only in the reference")
                 continue
             _walk(a[k], b[k], f"{path}/{k}", diffs)
     elif isinstance(a, list) and isinstance(b, list):
@@ -106,6 +109,10 @@ def _walk(a, b, path: str, diffs: list[str]) -> None:
     elif isinstance(a, bool | int | str) or a is None:
         if a != b:
             diffs.append(f"{path}: {a!r} != {b!r}")
+
+
+#: Outputs of the new version that the reference does not have (summary keys, CSV columns).
+ADDED: set[str] = set()
 
 
 def compare_summary(ref: Path, new: Path) -> list[str]:
@@ -134,13 +141,39 @@ def _column_scales(rows: list[list[str]]) -> list[float]:
     return scales
 
 
+def _aligned(ra: list[list[str]], rb: list[list[str]], name: str):
+    """The new table's columns in the reference's order (added columns listed in ADDED).
+
+    A ``time`` column added to a table the reference wrote once, at the end of the run (the
+    probes of a flow run), keeps the rows of the last time.
+    """
+    ha, hb = ra[0], rb[0]
+    missing = [c for c in ha if c not in hb]
+    if missing:
+        return None, f"{name}: columns {missing} missing"
+    for c in hb:
+        if c not in ha:
+            ADDED.add(f"{name}: column {c}")
+    if "time" in hb and "time" not in ha and len(rb) > 1:
+        k = hb.index("time")
+        last = max(float(r[k]) for r in rb[1:])
+        rb = [hb] + [r for r in rb[1:] if float(r[k]) == last]
+    idx = [hb.index(c) for c in ha]
+    return [[r[i] for i in idx] for r in rb], None
+
+
 def compare_csv(ref: Path, new: Path, rtol: float | None = None) -> tuple[list[str], float]:
     """Differences beyond the printed precision, and the largest difference in printed units.
 
-    With ``rtol``: beyond ``rtol`` times the column's largest value, in those units.
+    With ``rtol``: beyond ``rtol`` times the column's largest value, in those units. Columns are
+    matched by name (see :func:`_aligned`).
     """
     with open(ref) as fa, open(new) as fb:
         ra, rb = list(csv.reader(fa)), list(csv.reader(fb))
+    if ra and rb:
+        rb, err = _aligned(ra, rb, new.name)
+        if err:
+            return [err], math.inf
     if len(ra) != len(rb):
         return [f"{new.name}: {len(ra)} rows != {len(rb)}"], math.inf
     scales = _column_scales(ra) if rtol is not None else None
@@ -233,6 +266,9 @@ def markdown(rows: list[dict], rtol: float, title: str, csv_rtol: float | None =
         ok = "equal" if not r["diffs"] else f"**{len(r['diffs'])} differences**"
         lines.append(f"| {r['case']} | {r['summary'] or '-'} | {r['csv']:.2g} | {r['h5']:.1e} "
                      f"| {ok} |")
+    if ADDED:
+        lines += ["", "Outputs added since the reference (not compared): "
+                  + "; ".join(sorted(ADDED)) + "."]
     bad = [r for r in rows if r["diffs"]]
     if bad:
         lines += ["", "Differences:", ""]

@@ -52,6 +52,8 @@ def test_load_run_read(tmp_path):
     assert p_m.shape == (len(flow.cells),) and 1e5 <= p_m.min() < p_m.max() <= 2e5 * (1 + 1e-9)
     assert res.probes == ("fracture_5", "y_0.5")
     probe = res.probe("y_0.5")
+    assert sorted(set(probe["time"])) == [0.0, 1000.0, 2000.0]  # every output time
+    probe = res.probe("y_0.5", time=2000.0)
     assert probe["x"][0] == 0.0 and np.isnan(probe["p_f"]).any()
     assert res.scene["name"] == "flow_six_fractures" and res.scene["time"]["steps"] == 2
     with pytest.raises(FileNotFoundError, match="no series 'displacement'"):

@@ -157,7 +157,7 @@ def test_scene_reference_is_up_to_date():
 
 def test_one_permeability_is_the_isotropic_list():
     """``permeability: k`` is ``[k]``: one value where a list of expressions is asked."""
-    base = mechanics_scene(time={"final": 1.0, "steps": 1})
+    base = mechanics_scene(time={"final": 1.0, "steps": 1}, physics="poromechanics")
     base["flow"] = {"permeability": 1e-12, "boundary_conditions": [{"boundary": "left",
                                                                     "pressure": 0.0}]}
     perm = scene_from_dict(base).flow.permeability

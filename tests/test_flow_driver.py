@@ -70,13 +70,14 @@ def test_steady_outputs_and_report(tmp_path):
     assert flux["left"]["total"] == pytest.approx(-1e-6, rel=1e-9)  # imposed inflow
     assert flux["right"]["total"] == pytest.approx(1e-6, rel=1e-6)  # steady: all leaves right
     header, rows = read_csv(tmp_path / "probe_bar.csv")
-    assert header == ["arc_length", "x", "y", "p_m", "p_f"]
-    x = np.array([float(r[1]) for r in rows])
-    has_pf = np.array([r[4] != "" for r in rows])
+    assert header == ["time", "arc_length", "x", "y", "p_m", "p_f"]
+    assert {r[0] for r in rows} == {"0"}  # steady: one output time
+    x = np.array([float(r[2]) for r in rows])
+    has_pf = np.array([r[5] != "" for r in rows])
     assert np.array_equal(has_pf, (x >= 0.2 - 1e-12) & (x <= 0.8 + 1e-12))
-    assert all(r[3] != "" for r in rows)
+    assert all(r[4] != "" for r in rows)
     _, rows = read_csv(tmp_path / "probe_vertical.csv")
-    assert all(r[4] == "" for r in rows)  # crosses no fracture lengthwise
+    assert all(r[5] == "" for r in rows)  # crosses no fracture lengthwise
 
 
 def test_transient_with_storage(tmp_path):

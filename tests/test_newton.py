@@ -93,7 +93,7 @@ def test_reuse_can_be_switched_off():
 
 
 @pytest.mark.parametrize(("name", "overrides"), [
-    ("sneddon", ["contact.formulation=nitsche"]),
+    ("sneddon", ["contact.formulation=nitsche", "contact.beta_n=1e12", "contact.beta_t=1e12"]),
     ("six_fractures_mechanics", ["time.steps=2", "contact.formulation=nitsche"]),
     ("six_fractures_mechanics", ["time.steps=2", "contact.formulation=mixed",
                                  "solver.condensation=false"]),

@@ -41,7 +41,7 @@ from poromech.coupling.fixed_stress import (
 from poromech.errors import SolverError
 from poromech.flow.balance import compute_fluxes, mass_balance
 from poromech.flow.output import FlowWriter
-from poromech.flow.physics import flow_report
+from poromech.flow.physics import flow_report, pressure_columns
 from poromech.flow.problem import TimeStep
 from poromech.flow.setup import flow_properties, problem_from_scene, time_dependent
 from poromech.flow.state import FlowState
@@ -171,7 +171,9 @@ class Poromechanics:
     def __init__(self, scene: Scene, fm: FracturedMesh, timer: Timer):
         self.scene, self.fm, self.timer, self.comm = scene, fm, timer, fm.comm
         self.writes_initial_state = True
-        self.mech = MechanicsPhysics(scene, fm, timer, PressureCoupling(scene.material.biot))
+        relative = scene.material.initial_stress is not None  # σ⁰ holds p⁰'s share already
+        self.mech = MechanicsPhysics(scene, fm, timer,
+                                     PressureCoupling(scene.material.biot, relative))
         self.model = self.mech.model
         with timer.phase("flow_setup"):
             self.flow = problem_from_scene(scene, fm)
@@ -315,6 +317,7 @@ class Poromechanics:
         pb = self.flow
         pb.set_pressure(self.scene.flow.initial_pressure, 0.0)
         self.p0_cells = pb.cell_pressure.copy()
+        self.model.set_reference_pressure(self.p0_cells)
         self.mech.begin_step(0.0)
         self.model.set_pressures(pb.cell_pressure, pb.fracture_pressure)
         rec = self.mech.solve_contact()
@@ -507,9 +510,14 @@ class Poromechanics:
     def write(self, t: float) -> None:
         """Displacement, fracture fields with pressure and aperture, matrix flow fields."""
         pb = self.flow
-        self.mech.write(t, {"p_f": pb.fracture_pressure, "aperture": pb.properties.aperture})
+        porosity = self.accepted.porosity if self._step is None else pb.porosity(self._step)
+
+        def pressures(probe, sampler) -> dict:
+            return {**pressure_columns(pb, probe, sampler), "porosity": sampler.cells(porosity)}
+
+        self.mech.write(t, {"p_f": pb.fracture_pressure, "aperture": pb.properties.aperture},
+                        pressures)
         if self.writer is not None:
-            porosity = self.accepted.porosity if self._step is None else pb.porosity(self._step)
             with self.timer.phase("output"):
                 self.writer.write(t, compute_fluxes(pb), {
                     "overpressure": pb.cell_pressure - self.p0_cells, "porosity": porosity})
@@ -553,6 +561,7 @@ class Poromechanics:
         pb, fm = self.flow, self.fm
         pb.set_pressure(self.scene.flow.initial_pressure, 0.0)
         self.p0_cells = pb.cell_pressure.copy()
+        self.model.set_reference_pressure(self.p0_cells)
         self.mech.restore(arrays, t)
         self.accepted.restore(arrays)
         cells = input_cells(fm.msh)

@@ -37,8 +37,8 @@ class Fluxes:
 
 
 def compute_fluxes(problem: DarcyProblem) -> Fluxes:
-    """Fluxes of DESIGN §5 from the current solution (local)."""
-    p = problem.p
+    """Fluxes of DESIGN §5 from the current solution (local); gravity through the potential."""
+    p = problem.potential
     d = problem.dofs
     dp = p[d.cell][:, None] - p[d.cell_faces]
     cell = np.einsum("nfg,ng->nf", problem.A_cell, dp)

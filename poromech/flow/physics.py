@@ -1,8 +1,8 @@
 """Flow-only runs (``physics: flow``): the Darcy physics behind the time loop.
 
 :class:`FlowPhysics` implements :class:`poromech.physics.Physics` for a steady solve or
-implicit Euler steps; it builds no mechanics. Outputs: ``flow.xdmf`` and ``fractures_flow.xdmf``
-(every output time, from ``t = 0`` for transient runs), ``probe_<name>.csv`` (final time) and
+implicit Euler steps; it builds no mechanics. Outputs: ``flow.xdmf``, ``fractures_flow.xdmf`` and
+``probe_<name>.csv`` (every output time, from ``t = 0`` for transient runs) and
 ``summary["flow"]``.
 """
 
@@ -21,11 +21,11 @@ from poromech.flow.output import FlowWriter
 from poromech.flow.problem import DarcyProblem, TimeStep
 from poromech.flow.setup import flow_properties, problem_from_scene, time_dependent
 from poromech.flow.state import FlowState
-from poromech.io.probes import LineSampler, write_csv
+from poromech.io.probes import LineSampler, open_probes
 from poromech.physics import Keyed, StepResult
 from poromech.scene.schema import Scene
 
-__all__ = ["FlowPhysics", "flow_report", "solve_record", "write_probes"]
+__all__ = ["FlowPhysics", "flow_report", "pressure_columns", "probe_faces", "solve_record"]
 
 log = logging.getLogger("poromech")
 
@@ -42,24 +42,25 @@ def solve_record(problem: DarcyProblem, t: float, step: TimeStep | None) -> dict
     }
 
 
-def write_probes(scene: Scene, problem: DarcyProblem, outdir: Path) -> None:
-    """Sample ``p_m`` and ``p_f`` along every probe line to ``probe_<name>.csv`` (collective)."""
-    fm, g = problem.fm, problem.geom
-    ends = problem.dofs.points[problem.dofs.node]
-    faces = (ends, fm.fractures.index.astype(np.float64))
+def probe_faces(problem: DarcyProblem) -> tuple:
+    """The owned fracture faces for probes: segments between their node unknowns, keys."""
+    fm = problem.fm
+    return problem.dofs.points[problem.dofs.node], fm.fractures.index.astype(np.float64)
+
+
+def pressure_columns(problem: DarcyProblem, probe, sampler: LineSampler) -> dict:
+    """``p_m`` and ``p_f`` along a probe line, on rank 0 (collective).
+
+    ``probe.interpolation`` linear: ``p_m`` from the HFV cell gradient, ``p_f`` linear between
+    face and node values; constant: the cell and face values.
+    """
+    g = problem.geom
+    linear = probe.interpolation == "linear"
     grads = cell_gradients(g.area, g.normal, g.volume, problem.cell_pressure,
-                           problem.face_pressure)
-    for probe in scene.probes:
-        sampler = LineSampler(fm.msh, probe.start, probe.end, probe.samples, faces)
-        linear = probe.interpolation == "linear"
-        p_m = sampler.cells(problem.cell_pressure, grads if linear else None, g.centroid)
-        p_f = sampler.faces(problem.fracture_pressure, problem.branch_pressure if linear else None)
-        if problem.comm.rank == 0:
-            x = sampler.points
-            write_csv(Path(outdir) / f"probe_{probe.name}.csv", {
-                "arc_length": sampler.arc_length, "x": x[:, 0], "y": x[:, 1],
-                "p_m": p_m, "p_f": p_f,
-            })
+                           problem.face_pressure) if linear else None
+    return {"p_m": sampler.cells(problem.cell_pressure, grads, g.centroid),
+            "p_f": sampler.faces(problem.fracture_pressure,
+                                 problem.branch_pressure if linear else None)}
 
 
 class FlowPhysics:
@@ -84,7 +85,7 @@ class FlowPhysics:
                  solver["ksp_type"], solver["pc_type"])
         self.varying = time_dependent(scene)
         self.writer: FlowWriter | None = None
-        self.outdir: Path | None = None
+        self.probes: list[tuple] = []
         self.writes_initial_state = scene.time is not None
         self.accepted = FlowState(self.problem)
         self._step: TimeStep | None = None
@@ -143,24 +144,23 @@ class FlowPhysics:
 
     # -- output --------------------------------------------------------------------------
     def open_output(self, outdir: Path, resume_until: float | None = None) -> None:
-        """Create the XDMF writers (if selected by ``output.xdmf``)."""
-        self.outdir = Path(outdir)
-        if self.scene.output.xdmf:
-            with self.timer.phase("flow_output"):
-                self.writer = FlowWriter(self.problem, self.outdir, resume_until=resume_until)
+        """Create the XDMF writers (if selected by ``output.xdmf``) and the probe files."""
+        with self.timer.phase("flow_output"):
+            if self.scene.output.xdmf:
+                self.writer = FlowWriter(self.problem, Path(outdir), resume_until=resume_until)
+            self.probes = open_probes(self.fm.msh, self.scene.probes, outdir,
+                                      probe_faces(self.problem), resume_until)
 
     def write(self, t: float) -> None:
-        """Write the flow fields at ``t``."""
-        if self.writer is not None:
-            with self.timer.phase("flow_output"):
+        """Write the flow fields and the probes at ``t``."""
+        with self.timer.phase("flow_output"):
+            if self.writer is not None:
                 self.writer.write(t, compute_fluxes(self.problem))
+            for probe, table in self.probes:
+                table.write(t, pressure_columns(self.problem, probe, table.sampler))
 
     def finish(self, summary: dict, records: list[dict]) -> None:
-        """Probes at the last solved time and the flow report (``summary["flow"]``)."""
-        if self.outdir is not None and records and records[-1].get("reason", "") \
-                .startswith("CONVERGED"):
-            with self.timer.phase("flow_output"):
-                write_probes(self.scene, self.problem, self.outdir)
+        """The flow report (``summary["flow"]``)."""
         summary.setdefault("flow", {}).update(flow_report(self.problem, records))
 
     # -- checkpoint ----------------------------------------------------------------------

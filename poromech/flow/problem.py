@@ -140,6 +140,9 @@ class DarcyProblem:
         options: PETSc options merged over the defaults (without the prefix).
         beta: HFV stabilization ``β`` (default ``√d``).
         geom: The cell geometry if already computed (else computed here).
+        gravity: ``ρ_f g`` (Pa/m), the fluid's weight per volume, or None: Darcy's law then acts
+            on the potential ``ψ = p - ρ_f g·x`` (the system is solved for ``ψ``; storage terms
+            and outputs stay in ``p``), so that a hydrostatic pressure is at rest.
 
     Attributes:
         geom: Geometry of the owned cells.
@@ -156,6 +159,7 @@ class DarcyProblem:
         T_half: ``T_{σ,e} / η``, the half-face part of ``T_fracture``, ``(nf, 2)``.
         crossings: Which face ends cross another fracture at their node.
         p: Current solution on the local (owned, then ghost) dofs (Pa).
+        head: ``ρ_f g·x`` at every local dof (Pa), or None without gravity.
         records: One :class:`LinearRecord` per solve.
     """
 
@@ -172,6 +176,7 @@ class DarcyProblem:
         options: dict | None = None,
         beta: float | None = None,
         geom: CellGeometry | None = None,
+        gravity: Array | None = None,
     ):
         self.fm, self.comm = fm, fm.comm
         self.geom: CellGeometry = cell_geometry(fm.msh) if geom is None else geom
@@ -192,6 +197,7 @@ class DarcyProblem:
         self._global = d.local_to_global(np.arange(d.num_local)).astype(PETSc.IntType)
         self.solver = LinearSolver(self.A, prefix, solver, options)
         self.p = np.zeros(d.num_local)
+        self.head = None if gravity is None else d.points @ np.asarray(gravity, dtype=float)
         self.shift = TraceShift(fm, d, self.geom.facets)
         self.records: list[LinearRecord] = []
         self._storage_dt: float | None = None
@@ -236,14 +242,19 @@ class DarcyProblem:
         if self.shift.update(self.A_cell, self.t_pair):
             self._write_guess()
 
-    def element_values(self, dt: float | None) -> ElementValues:
-        """Element matrices for a steady (``dt`` None) or implicit Euler solve."""
+    def _storage_diagonals(self, dt: float | None) -> tuple[Array, Array]:
+        """``|K| s_K / Δt`` of the cells and ``|σ| s_f / Δt`` of the fracture faces."""
         storage = np.zeros(self.geom.num_cells)
         fracture_storage = np.zeros(len(self.faces.measure))
         if dt is not None:
             storage = self.geom.volume * self.properties.storage / dt
             if self.properties.fracture_storage is not None:
                 fracture_storage = self.faces.measure * self.properties.fracture_storage / dt
+        return storage, fracture_storage
+
+    def element_values(self, dt: float | None) -> ElementValues:
+        """Element matrices for a steady (``dt`` None) or implicit Euler solve."""
+        storage, fracture_storage = self._storage_diagonals(dt)
         E = cell_elements(self.A_cell)
         plain, touching = self.pattern.plain_cells, self.pattern.fracture_cells
         return ElementValues(
@@ -326,6 +337,10 @@ class DarcyProblem:
         if step is not None:
             b[d.cell] += g.volume * (step.porosity_prev - step.porosity_fixed) / step.dt
             b[d.fracture] -= f.measure * (self._volume_fixed(step) - step.aperture_prev) / step.dt
+            if self.head is not None:  # storage acts on p = ψ + ρ_f g·x, the unknown is ψ
+                storage, fracture_storage = self._storage_diagonals(step.dt)
+                b[d.cell] -= storage * self.head[d.cell]
+                b[d.fracture] -= fracture_storage * self.head[d.fracture]
         values = self._values if self._values is not None else self.element_values(None).flat()
         return b + self.pattern.dirichlet_rhs(values, self.dirichlet_values(t))
 
@@ -340,10 +355,12 @@ class DarcyProblem:
         return out
 
     def dirichlet_values(self, t: float) -> Array:
-        """Dirichlet values over the local dofs at time ``t`` (zero elsewhere)."""
+        """Dirichlet values of the unknowns (potentials) over the local dofs at ``t`` (else 0)."""
         g = np.zeros(self.dofs.num_local)
         dof, bc = self.bdofs.dirichlet
         g[dof] = self._boundary_values(dof, bc, t)
+        if self.head is not None:
+            g[dof] -= self.head[dof]
         return g
 
     def _initial_guess(self, t: float) -> None:
@@ -361,6 +378,8 @@ class DarcyProblem:
         with self.x.localForm() as loc:
             self.p[:] = loc.getArray(readonly=True)
         self.shift.to_pressure(self.p)
+        if self.head is not None:
+            self.p += self.head
 
     def set_pressure(self, p: Field, t: float = 0.0) -> None:
         """Set every unknown from ``p(x, t)``: initial state or initial guess (collective)."""
@@ -378,7 +397,7 @@ class DarcyProblem:
 
     def _write_guess(self) -> None:
         """Put the current pressures into the solution vector (the next initial guess)."""
-        values = self.p.copy()
+        values = self.potential.copy()
         self.shift.to_variables(values)
         n = self.dofs.num_owned
         self.x.setValues(self._global[:n], values[:n])
@@ -386,6 +405,11 @@ class DarcyProblem:
         self._read_solution()
 
     # -- solution views (owned entities) --------------------------------------------------
+    @property
+    def potential(self) -> Array:
+        """``ψ = p - ρ_f g·x`` on the local dofs (Pa): what drives the Darcy fluxes."""
+        return self.p if self.head is None else self.p - self.head
+
     @property
     def cell_pressure(self) -> Array:
         """``p_K`` on the owned cells (Pa)."""

@@ -100,6 +100,7 @@ def problem_from_scene(scene: Scene, fm: FracturedMesh, prefix: str = "flow_") -
         options=flow.petsc,
         beta=flow.stabilization,
         geom=geom,
+        gravity=None if scene.gravity is None else flow.fluid_density * np.asarray(scene.gravity),
     )
 
 

@@ -1,18 +1,24 @@
 """Sampling of cell-wise and fracture-face data along straight lines (collective).
 
-A :class:`LineSampler` places ``samples`` equidistant points on a segment. Cell data are read
-from the owned cell containing each point; a point on a shared edge or vertex takes the cell
-with the smallest *input* (original) index, so the answer does not depend on the partition.
+A :class:`LineSampler` places ``samples`` equidistant points on a segment. Cell data and finite
+element functions are read from the owned cell containing each point; a point on a shared edge
+or vertex takes the cell with the smallest *input* (original) index, so the answer does not
+depend on the partition.
 Optionally a cell gradient gives the linear reconstruction ``v_K + g_K·(x - x_K)``. Face data
 (one value per fracture face, optionally with values at the face ends for a piecewise linear
 profile) are read only where the line runs *along* a fracture: a face counts when both its end
 points lie on the line. Results are gathered on rank 0, NaN where a
 point has no value; :func:`write_csv` writes them with empty fields there.
+
+:class:`ProbeTable` writes one ``probe_<name>.csv`` per line, a block of rows per output time
+(``time`` first), crash-safe like ``fractures.csv``; a physics gives the columns of each time.
 """
 
 from __future__ import annotations
 
 import csv
+import io
+import os
 from pathlib import Path
 
 import dolfinx_solver  # noqa: F401  (orders MPI before the bindings)
@@ -22,7 +28,11 @@ import numpy as np
 import numpy.typing as npt
 from mpi4py import MPI
 
-__all__ = ["LineSampler", "line_differences", "read_csv", "write_csv"]
+from poromech.errors import OutputError
+from poromech.io.xdmf import atomic_write_text, root_write
+
+__all__ = ["LineSampler", "ProbeTable", "line_differences", "open_probes", "read_csv",
+           "write_csv"]
 
 Array = npt.NDArray[np.float64]
 
@@ -118,6 +128,20 @@ class LineSampler:
             local = local + np.einsum("ni,ni->n", gradients[c], self.points - centroids[c])
         return self._gather(local, self._mine)
 
+    def function(self, u) -> Array | None:
+        """A finite element function at the points, ``(samples, value size)`` on rank 0.
+
+        Evaluated in the cell each point was assigned to (collective).
+        """
+        x3 = np.column_stack([self.points, np.zeros((len(self.points), 3 - self.points.shape[1]))])
+        size = max(1, int(np.prod(u.ufl_shape)))
+        local = np.zeros((len(self.points), size))
+        mine = np.flatnonzero(self._mine)
+        if len(mine):
+            local[mine] = u.eval(x3[mine], self._cell[mine].astype(np.int32)).reshape(-1, size)
+        columns = [self._gather(local[:, k], self._mine) for k in range(size)]
+        return None if self.comm.rank else np.column_stack(columns)
+
     def faces(self, values: Array, end_values: Array | None = None) -> Array | None:
         """Face data where the line runs along a fracture, on rank 0 (collective).
 
@@ -179,3 +203,73 @@ def line_differences(s_ref, p_ref, s, p, keep=None) -> dict[str, float]:
         "rel": float(err / np.sqrt(np.sum(w * p_ref**2))),
         "range": float(err / np.sqrt(np.sum(w)) / (p_ref.max() - p_ref.min())),
     }
+
+
+class ProbeTable:
+    """``probe_<name>.csv``: the columns of a probe line, a block of rows per output time.
+
+    Collective :meth:`write`; rank 0 appends each time in one write. After a restart the rows up
+    to ``resume_until`` are kept.
+
+    Args:
+        comm: Communicator.
+        path: The CSV file.
+        sampler: The probe line.
+        resume_until: When continuing a run, keep the rows up to this time; None starts anew.
+    """
+
+    def __init__(self, comm: MPI.Comm, path: Path, sampler: LineSampler,
+                 resume_until: float | None = None):
+        self.comm, self.path, self.sampler = comm, Path(path), sampler
+        self._resume_until = resume_until
+        self._header: list[str] | None = None
+
+    def _start(self, header: list[str]) -> None:
+        """The header, and the rows of an earlier run up to ``resume_until`` (rank 0)."""
+        keep = ""
+        if self._resume_until is not None and self.path.exists():
+            keep = "".join(line for line in self.path.read_text().splitlines(True)[1:]
+                           if float(line.split(",", 1)[0]) <= self._resume_until * (1 + 1e-12))
+        atomic_write_text(self.path, ",".join(header) + "\n" + keep)
+
+    def write(self, t: float, columns: dict[str, Array | None]) -> None:
+        """Append the rows of time ``t`` (collective).
+
+        ``columns`` maps a name to the values at the points on rank 0 (as the sampler gathers
+        them), None on the other ranks.
+        """
+        s = self.sampler
+        coords = dict(zip("xyz", s.points.T, strict=False))
+        table = {"arc_length": s.arc_length, **coords, **columns}
+        if self._header is None:
+            self._header = ["time", *table]
+            root_write(self.comm, self._start, self._header)
+        root_write(self.comm, self._append, t, table)
+
+    def _append(self, t: float, table: dict[str, Array]) -> None:
+        data = np.column_stack([np.full(len(self.sampler.points), t)]
+                               + [np.asarray(v, dtype=float) for v in table.values()])
+        buf = io.StringIO()
+        for row in data:
+            buf.write(",".join("" if np.isnan(v) else f"{v:.12g}" for v in row) + "\n")
+        try:
+            with open(self.path, "a") as fh:
+                fh.write(buf.getvalue())
+        except OSError as err:
+            raise OutputError(f"could not write {self.path}: {os.strerror(err.errno)}") from None
+
+
+def open_probes(msh: dolfinx.mesh.Mesh, probes, outdir: Path, faces: tuple[Array, Array] | None,
+                resume_until: float | None = None) -> list[tuple]:
+    """The probe lines of a scene and their files: ``[(probe, table), ...]`` (collective).
+
+    Args:
+        msh: The mesh.
+        probes: The scene's ``probes``.
+        outdir: Output directory (``probe_<name>.csv``).
+        faces: The owned fracture faces as ``(segments (nf, 2, d), keys)``, or None.
+        resume_until: When continuing a run, keep the rows up to this time.
+    """
+    return [(p, ProbeTable(msh.comm, Path(outdir) / f"probe_{p.name}.csv",
+                           LineSampler(msh, p.start, p.end, p.samples, faces), resume_until))
+            for p in probes]

@@ -114,21 +114,30 @@ class Results:
         Args:
             time: Keep the rows of the output time nearest to it; None: every row.
         """
-        table = read_table(self.path / "fractures.csv")
-        if time is None or not len(table["time"]):
-            return table
-        times = np.unique(table["time"])
-        keep = table["time"] == times[np.argmin(np.abs(times - time))]
-        return {k: v[keep] for k, v in table.items()}
+        return _at_time(read_table(self.path / "fractures.csv"), time)
 
-    def probe(self, name: str) -> dict[str, npt.NDArray]:
-        """``probe_<name>.csv`` (pressure along a probe line) as column arrays."""
-        return read_table(self.path / f"probe_{name}.csv")
+    def probe(self, name: str, time: float | None = None) -> dict[str, npt.NDArray]:
+        """``probe_<name>.csv`` (the fields along a probe line) as column arrays.
+
+        Args:
+            name: The probe's name.
+            time: Keep the rows of the output time nearest to it; None: every row.
+        """
+        return _at_time(read_table(self.path / f"probe_{name}.csv"), time)
 
     @property
     def probes(self) -> tuple[str, ...]:
         """Names of the probes written."""
         return tuple(sorted(p.stem[len("probe_"):] for p in self.path.glob("probe_*.csv")))
+
+
+def _at_time(table: dict[str, npt.NDArray], time: float | None) -> dict[str, npt.NDArray]:
+    """The rows of the output time nearest to ``time`` (all rows for None)."""
+    if time is None or not len(table["time"]):
+        return table
+    times = np.unique(table["time"])
+    keep = table["time"] == times[np.argmin(np.abs(times - time))]
+    return {k: v[keep] for k, v in table.items()}
 
 
 def open_results(outdir: str | Path) -> Results:

@@ -21,8 +21,14 @@ import ufl
 from dolfinx import fem
 from mpi4py import MPI
 
+from poromech.errors import ConfigError
 from poromech.forms import contact as cforms
-from poromech.forms.elasticity import biot_stress_form, elastic_form
+from poromech.forms.elasticity import (
+    biot_stress_form,
+    elastic_form,
+    epsilon,
+    initial_stress_form,
+)
 from poromech.forms.fracture import FractureKinematics, normal_jump, slip
 from poromech.mechanics.coercivity import symmetric_nitsche_ratio
 from poromech.mesh.fractured import (
@@ -35,7 +41,8 @@ from poromech.mesh.fractured import (
 from poromech.scene.expressions import Expression
 from poromech.scene.schema import Contact, Scene
 
-__all__ = ["FACE_FIELDS", "MechanicsModel", "PressureCoupling", "SLIP_TOLERANCE", "STATE_NAMES"]
+__all__ = ["FACE_FIELDS", "IMBALANCE_LIMIT", "MechanicsModel", "PressureCoupling",
+           "SLIP_TOLERANCE", "STATE_NAMES"]
 
 log = logging.getLogger("poromech")
 
@@ -49,6 +56,14 @@ STATE_NAMES = ("open", "stick", "slip")
 #: Relative tolerance of "on the friction bound": a closed face slips when
 #: ``|traction_t| >= (1 - SLIP_TOLERANCE) friction_bound``.
 SLIP_TOLERANCE = 1e-6
+#: Largest imbalance of the initial stress, relative to its load scale, accepted before the
+#: first solve: beyond, ``material.initial_stress`` is refused (it would move the body at t = 0).
+#: Below it the imbalance is the discretization's (a stress not polynomial in space) and is
+#: reported in the summary.
+IMBALANCE_LIMIT = 1e-3
+#: Components of an initial stress by dimension, as ``(i, j)`` in the order of the scene key.
+_STRESS_INDEX = {2: ((0, 0), (1, 1), (0, 1)),
+                 3: ((0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1))}
 
 
 @dataclass
@@ -82,9 +97,13 @@ class PressureCoupling:
 
     Attributes:
         biot: Biot coefficient ``b``.
+        relative: The Biot term acts on ``p_m - p⁰`` (:meth:`MechanicsModel.set_reference_pressure`)
+            instead of ``p_m``: with an initial (total) stress, which already holds the initial
+            pressure's share.
     """
 
     biot: float
+    relative: bool = False
 
 
 def _facet_submesh(fm: FracturedMesh):
@@ -136,6 +155,7 @@ class MechanicsModel:
         Q0 = fem.functionspace(msh, ("DG", 0))
         self.young = self._field(Q0, scene.material.young, "young")
         self.poisson = self._field(Q0, scene.material.poisson, "poisson")
+        self.initial_stress = self._initial_stress()
         self.unknowns = [self.u]
         self.lam = self.avg = None
         if c.active and self.has_fractures:
@@ -152,6 +172,9 @@ class MechanicsModel:
         self.kinematics = self._kinematics()
         self.bcs = self._dirichlet()
         self._build_forms()
+        #: The imbalance of the initial stress (``initial_state`` in the summary), or None.
+        self.initial_state = self._check_initial_stress() if self.initial_stress is not None \
+            else None
 
     # -- inputs -----------------------------------------------------------------------------
     @property
@@ -236,6 +259,7 @@ class MechanicsModel:
         """
         self.p_m = self.p_f = None
         self.biot = 0.0
+        self._reference = None  # p⁰ on the owned cells, subtracted from p_m (relative coupling)
         if self.pressures is None:
             return
         self.biot = self.pressures.biot
@@ -253,11 +277,20 @@ class MechanicsModel:
         """
         if self.p_m is not None and p_m is not None:
             n = len(p_m)
-            self.p_m.x.array[self._cell_dofs[:n]] = p_m
+            self.p_m.x.array[self._cell_dofs[:n]] = p_m if self._reference is None \
+                else p_m - self._reference
             self.p_m.x.scatter_forward()
         if self.p_f is not None and p_f is not None:
             self.p_f.x.array[self._face_dofs] = p_f
             self.p_f.x.scatter_forward()
+
+    def set_reference_pressure(self, p0: npt.NDArray[np.float64]) -> None:
+        """``p⁰`` on the owned cells (Pa): the Biot term then acts on ``p_m - p⁰``.
+
+        Only with a relative :class:`PressureCoupling` (an initial stress).
+        """
+        if self.pressures is not None and self.pressures.relative:
+            self._reference = np.array(p0, dtype=np.float64)
 
     @property
     def _cell_dofs(self) -> npt.NDArray[np.int32]:
@@ -324,8 +357,40 @@ class MechanicsModel:
         return FractureKinematics(
             n=n, young=self.young, poisson=self.poisson, side=self.scene.contact.traction_side,
             fracture_pressure=pf, slip_reference=self.u_prev, matrix_pressure=self.p_m,
-            biot=fem.Constant(self.fm.msh, self.biot),
+            biot=fem.Constant(self.fm.msh, self.biot), initial_stress=self.initial_stress,
         )
+
+    def _initial_stress(self):
+        """``σ⁰`` as a symmetric tensor (a constant, or DG of the displacement degree), or None.
+
+        DG of degree ``k`` (at least 1) represents a stress linear in depth exactly, so that a
+        lithostatic state is in discrete equilibrium with a constant weight.
+        """
+        exprs = self.scene.material.initial_stress
+        if exprs is None:
+            return None
+        msh = self.fm.msh
+        d = msh.geometry.dim
+        index = _STRESS_INDEX[d]
+        if all(e.is_uniform for e in exprs):
+            values = np.zeros((d, d))
+            for (i, j), e in zip(index, exprs, strict=True):
+                values[i, j] = values[j, i] = e.value()
+            return fem.Constant(msh, values)
+        T = fem.functionspace(msh, ("DG", max(1, self.scene.degree), (d, d)))
+        sigma0 = fem.Function(T, name="initial_stress")
+        order = [index.index((min(i, j), max(i, j))) for i in range(d) for j in range(d)]
+        sigma0.interpolate(lambda x: np.vstack([exprs[k](x.T, 0.0) for k in order]))
+        sigma0.x.scatter_forward()
+        return sigma0
+
+    def _weight(self):
+        """The body force ``ρ g`` of gravity (N/m³) as UFL, or None."""
+        g, rho = self.scene.gravity, self.scene.material.density
+        if g is None or rho is None:
+            return None
+        Q0 = fem.functionspace(self.fm.msh, ("DG", 0))
+        return self._field(Q0, rho, "density") * fem.Constant(self.fm.msh, np.asarray(g, float))
 
     def _dirichlet(self) -> list[fem.DirichletBC]:
         geo, fm = self.fm.geometry, self.fm
@@ -349,6 +414,101 @@ class MechanicsModel:
                 bcs.append(fem.dirichletbc(g, dofs, self.V.sub(k)))
         return bcs
 
+    # -- the initial state ------------------------------------------------------------------
+    def _check_initial_stress(self) -> dict:
+        """The imbalance of ``σ⁰`` with the body force and the boundary tractions at t = 0.
+
+        ``R(v) = ∫ σ⁰:ε(v) - ∫ (f + ρ g)·v - ∫_Γ_N t·v`` on a continuous space of the
+        displacement degree (its test functions have no jump, so the fractures, which carry
+        ``σ⁰n`` by contact, take no part), with the rows of the imposed displacement components
+        left out (they are reactions). Collective.
+
+        Returns:
+            ``residual`` (N/m in 2D), ``scale`` (the largest of ``|∫ σ⁰:ε(v)|`` and
+            ``|∫ (f + ρ g)·v|``: the size of the forces in balance), ``relative`` (``residual``
+            over ``scale``) and ``where`` (the boundary, or ``interior``, with the largest
+            entry).
+
+        Raises:
+            ConfigError: ``relative`` above :data:`IMBALANCE_LIMIT`.
+        """
+        msh, fm, scene = self.fm.msh, self.fm, self.scene
+        d, fdim = msh.geometry.dim, msh.topology.dim - 1
+        W = fem.functionspace(msh, ("Lagrange", scene.degree, (d,)))
+        v = ufl.TestFunction(W)
+        dx = ufl.Measure("dx", domain=msh)
+        tags = dolfinx.mesh.meshtags(msh, fdim, np.sort(fm.boundary_facets),
+                                     fm.boundary_edge[np.argsort(fm.boundary_facets)] + 1)
+        ds = ufl.Measure("ds", domain=msh, subdomain_data=tags)
+        internal = ufl.inner(self.initial_stress, epsilon(v)) * dx
+        load = ufl.dot(self.weight, v) * dx if self.weight is not None else None
+        f = scene.material.body_force
+        if not all(e.is_constant and e.value() == 0.0 for e in f):
+            body = ufl.dot(self._vector_input(f), v) * dx
+            load = body if load is None else load + body
+        for bc in scene.boundary_conditions:
+            if bc.traction is not None:
+                edges = [i + 1 for i, n in enumerate(fm.geometry.boundary_names)
+                         if n == bc.boundary]
+                t = sum(ufl.dot(self._vector_input(bc.traction), v) * ds(e) for e in edges)
+                load = t if load is None else load + t
+
+        def assemble(form):
+            b = fem.assemble_vector(fem.form(form))
+            b.scatter_reverse(dolfinx.la.InsertMode.add)
+            return b.array[: W.dofmap.index_map.size_local * d].reshape(-1, d)
+
+        a = assemble(internal)
+        r = a - assemble(load) if load is not None else a.copy()
+        fixed = np.zeros_like(r, dtype=bool)
+        for bc in scene.boundary_conditions:
+            for k, e in enumerate(bc.displacement or ()):
+                if e is not None:
+                    facets = fm.boundary(tuple(i for i, n in enumerate(fm.geometry.boundary_names)
+                                               if n == bc.boundary))
+                    dofs = fem.locate_dofs_topological(W, fdim, facets)
+                    dofs = dofs[dofs < len(r)]
+                    fixed[dofs, k] = True
+        r[fixed] = 0.0
+        comm = msh.comm
+        norm = float(np.sqrt(comm.allreduce(float(np.sum(r * r)))))
+        scale = max(float(np.sqrt(comm.allreduce(float(np.sum(a * a))))),
+                    float(np.sqrt(comm.allreduce(float(np.sum((a - r) ** 2))))))
+        relative = norm / scale if scale > 0 else 0.0
+        where = self._largest_entry(W, np.abs(r).max(axis=1, initial=0.0))
+        out = {"residual": norm, "scale": scale, "relative": relative, "where": where}
+        if relative > IMBALANCE_LIMIT:
+            place = "in the interior" if where == "interior" else f"on boundary {where!r}"
+            raise ConfigError(
+                f"scene key 'material.initial_stress' is not in equilibrium with the body force "
+                f"and the boundary tractions at t = 0: the residual is {relative:.2g} of the "
+                f"loads, largest {place} (give that boundary the traction σ⁰n, a displacement "
+                "condition, or the density and gravity that balance div σ⁰)")
+        if relative > 1e-8:
+            log.warning("the initial stress is in equilibrium to %.1e of the loads only (largest "
+                        "on %s): the imbalance moves the body at the first solve", relative, where)
+        return out
+
+    def _largest_entry(self, W: fem.FunctionSpace, values: npt.NDArray[np.float64]) -> str:
+        """The named boundary holding the largest of the owned dof ``values``, or ``interior``.
+
+        Collective; the same on every rank.
+        """
+        fm, fdim = self.fm, self.fm.msh.topology.dim - 1
+        local = float(values.max(initial=0.0))
+        best = fm.comm.allreduce(local, op=MPI.MAX)
+        place = "interior"
+        for name in dict.fromkeys(fm.geometry.boundary_names):
+            facets = fm.boundary(tuple(i for i, n in enumerate(fm.geometry.boundary_names)
+                                       if n == name))
+            dofs = fem.locate_dofs_topological(W, fdim, facets)
+            dofs = dofs[dofs < len(values)]
+            hit = bool(len(dofs)) and float(values[dofs].max()) >= best > 0
+            if fm.comm.allreduce(hit, op=MPI.LOR):
+                place = name
+                break
+        return place
+
     # -- forms ------------------------------------------------------------------------------
     def _build_forms(self) -> None:
         scene, fm, c = self.scene, self.fm, self.params
@@ -361,11 +521,16 @@ class MechanicsModel:
         )
         ds = ufl.Measure("ds", domain=msh, subdomain_data=tags)
         F0 = elastic_form(self.u, v, self.young, self.poisson, dx)
+        if self.initial_stress is not None:
+            F0 += initial_stress_form(self.initial_stress, v, dx)
         if self.p_m is not None:
             F0 += biot_stress_form(self.p_m, v, self.kinematics.biot, dx)
         f = scene.material.body_force
         if not all(e.is_constant and e.value() == 0.0 for e in f):
             F0 -= ufl.dot(self._vector_input(f), v) * dx
+        self.weight = self._weight()
+        if self.weight is not None:
+            F0 -= ufl.dot(self.weight, v) * dx
         for bc in scene.boundary_conditions:
             if bc.traction is None:
                 continue

@@ -25,11 +25,13 @@ from poromech.io.checkpoint import (
     set_face_dof_rows,
 )
 from poromech.io.output import FractureTable, displacement_mesh, fracture_mesh, owned_blocks
+from poromech.io.probes import open_probes
 from poromech.io.xdmf import XDMFSeries
 from poromech.mechanics.linear import is_direct
 from poromech.mechanics.model import MechanicsModel, PressureCoupling
 from poromech.mechanics.newton import NewtonRecord, SemiSmoothNewton
 from poromech.mechanics.predictor import StepPredictor
+from poromech.mesh.entities import fracture_segments
 from poromech.mesh.fractured import FracturedMesh
 from poromech.physics import Keyed, StepResult
 from poromech.scene.schema import Scene
@@ -104,10 +106,15 @@ class MechanicsPhysics:
         condensed = self._condensed()
         if condensed is not None:
             self.solver.attach_condensation(condensed)
+        if model.initial_state is not None:
+            # an initial stress in equilibrium is the solution at rest: its residual is
+            # round-off, and the relative tolerance is taken from the forces in balance instead
+            self.solver.reference_norm = model.initial_state["scale"]
         self.predictor = StepPredictor(model.unknowns, fm.comm)
         self._saved = [f.x.array.copy() for f in model.unknowns]
         self._series: dict[str, XDMFSeries] = {}
         self._table: FractureTable | None = None
+        self._probes: list[tuple] = []
 
     def _condensed(self):
         """A :class:`~poromech.mechanics.condensed.CondensedContact` where it applies, else None."""
@@ -149,6 +156,8 @@ class MechanicsPhysics:
         out["condensed"] = None if c is None else c.describe()
         if self.model.coercivity_ratio is not None:
             out["coercivity_ratio"] = self.model.coercivity_ratio
+        if self.model.initial_state is not None:
+            out["initial_stress_imbalance"] = self.model.initial_state
         if self.model.warnings:
             out["warnings"] = list(self.model.warnings)
         return out
@@ -237,6 +246,21 @@ class MechanicsPhysics:
                 columns = (*WRITTEN_FACE_FIELDS, "state", *fracture_columns)
                 self._table = FractureTable(self.fm, Path(outdir) / "fractures.csv", columns,
                                             resume_until)
+            faces = self.fm.fractures
+            segments = (fracture_segments(self.fm.msh, faces.facets, faces.tangents[:, 0]),
+                        faces.index.astype(np.float64))
+            self._probes = open_probes(self.fm.msh, self.scene.probes, outdir, segments,
+                                       resume_until)
+
+    def probe_columns(self, sampler, faces: dict[str, np.ndarray] | None) -> dict:
+        """Displacement components and, along fractures, the written face fields (rank 0)."""
+        u = sampler.function(self.model.u)
+        d = self.fm.msh.geometry.dim
+        out = {f"u_{c}": None if u is None else u[:, k] for k, c in enumerate("xyz"[:d])}
+        if faces is not None:
+            for name in WRITTEN_FACE_FIELDS:
+                out[name] = sampler.faces(faces[name])
+        return out
 
     def face_output(self) -> dict[str, np.ndarray]:
         """The written face fields and states of the owned fracture faces (collective)."""
@@ -245,19 +269,32 @@ class MechanicsPhysics:
         out["state"] = self.model.states(values)
         return out
 
-    def write(self, t: float, extra_faces: dict[str, np.ndarray] | None = None) -> None:
-        """Write the displacement, the fracture fields and the fracture table at ``t``."""
+    def write(self, t: float, extra_faces: dict[str, np.ndarray] | None = None,
+              extra_probes=None) -> None:
+        """Write the displacement, the fracture fields, the fracture table and the probes at ``t``.
+
+        Args:
+            t: Time (s).
+            extra_faces: More face fields (a coupled run's ``p_f``, ``aperture``).
+            extra_probes: ``f(probe, sampler) -> columns`` adding probe columns (rank 0 values).
+        """
         with self.timer.phase("output"):
             faces = None
             if "u" in self._series:
                 self._series["u"].write(t, point_data={"u": owned_blocks(self.model.u)})
-            if self.model.faces is not None and (self._table or "fractures" in self._series):
+            if self.model.faces is not None and (self._table or "fractures" in self._series
+                                                 or self._probes):
                 faces = {**self.face_output(), **(extra_faces or {})}
             if "fractures" in self._series:
                 self._series["fractures"].write(t, cell_data=faces)
             if self._table is not None:
                 self._table.write(t, {k: v for k, v in faces.items()
                                       if k not in XDMF_ONLY_FACE_FIELDS})
+            for probe, table in self._probes:
+                columns = self.probe_columns(table.sampler, faces)
+                if extra_probes is not None:
+                    columns.update(extra_probes(probe, table.sampler))
+                table.write(t, columns)
 
     # -- checkpoint ----------------------------------------------------------------------
     def _rows(self, f, values: np.ndarray) -> Keyed:

@@ -21,6 +21,7 @@ __all__ = [
     "CellGeometry",
     "cell_geometry",
     "facet_vertices",
+    "fracture_segments",
     "input_cells",
     "owned_cell_values",
     "vertex_coordinates",
@@ -140,3 +141,21 @@ def input_cells(msh: dolfinx.mesh.Mesh, owned: bool = True) -> npt.NDArray[np.in
     imap = msh.topology.index_map(msh.topology.dim)
     n = imap.size_local + (0 if owned else imap.num_ghosts)
     return np.asarray(msh.topology.original_cell_index, dtype=np.int64)[:n]
+
+
+def fracture_segments(msh: dolfinx.mesh.Mesh, facets: npt.NDArray[np.int32],
+                      tangents: npt.NDArray[np.float64] | None = None) -> npt.NDArray:
+    """Vertex coordinates of fracture facets, ``(n, d, d)`` (segments in 2D).
+
+    With ``tangents`` ``(n, d)`` (2D: the fracture tangent ``τ``) the two ends of a segment are
+    ordered along it, as the flow's node unknowns are.
+    """
+    tdim, gdim = msh.topology.dim, msh.geometry.dim
+    if len(facets) == 0:
+        return np.empty((0, tdim, gdim))
+    nodes = dolfinx.mesh.entities_to_geometry(msh, tdim - 1, np.asarray(facets, dtype=np.int32))
+    x = msh.geometry.x[nodes][:, :, :gdim]
+    if tangents is not None and tdim == 2:
+        swap = np.einsum("ni,ni->n", x[:, 1] - x[:, 0], tangents) < 0
+        x[swap] = x[swap][:, ::-1]
+    return x

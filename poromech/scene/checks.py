@@ -43,7 +43,6 @@ def check_boundary_name(key: str, name: str, known: set[str]) -> None:
 
 
 def _check_mechanics(scene: Scene, geo: PlaneGeometry) -> None:
-
     for key in ("geometry", "mesh", "material"):
         if getattr(scene, key) is None:
             raise ConfigError(f"scene key '{key}' is required for physics 'mechanics'")
@@ -98,6 +97,48 @@ def _check_mechanics_data(scene: Scene, geo: PlaneGeometry, times) -> None:
     check_expression(scene.fracture_pressure, points, "fracture_pressure", None, times)
     check_expression(scene.contact.slip_bound, points, "contact.slip_bound",
                 field_meta(Contact, "slip_bound"), times)
+    _check_weight_and_stress(scene, geo, times)
+
+
+#: Components of ``material.initial_stress`` by dimension (Voigt order).
+STRESS_COMPONENTS = {2: ("xx", "yy", "xy"), 3: ("xx", "yy", "zz", "yz", "xz", "xy")}
+
+
+def _check_gravity(scene: Scene, geo: PlaneGeometry) -> None:
+    """``gravity``: one finite component per coordinate."""
+    g = scene.gravity
+    if g is None:
+        return
+    if len(g) != geo.dim:
+        raise ConfigError(f"scene key 'gravity' = {list(g)} must have {geo.dim} components "
+                          f"(one per coordinate)")
+    if not all(np.isfinite(g)):
+        raise ConfigError(f"scene key 'gravity' = {list(g)} must be finite")
+
+
+def _check_weight_and_stress(scene: Scene, geo: PlaneGeometry, times) -> None:
+    """Density with gravity (each needs the other), and the initial stress's shape and data."""
+    m = scene.material
+    if m.density is not None and scene.gravity is None:
+        raise ConfigError("scene key 'material.density' has no effect without gravity: give "
+                          "gravity (e.g. [0, -9.81]) or remove the density")
+    if scene.gravity is not None and m.density is None:
+        raise ConfigError("scene key 'material.density' is required with gravity (the weight of "
+                          "the rock): give the bulk density in kg/m³")
+    check_field(m.density, "material.density", field_meta(Material, "density"), geo, times[:1])
+    if m.initial_stress is None:
+        return
+    names = STRESS_COMPONENTS[geo.dim]
+    if len(m.initial_stress) != len(names):
+        raise ConfigError(
+            f"scene key 'material.initial_stress' has {len(m.initial_stress)} components: "
+            f"a {geo.dim}D stress has {len(names)}, [{', '.join('σ_' + c for c in names)}]")
+    for k, e in enumerate(m.initial_stress):
+        path = f"material.initial_stress.{k}"
+        if e.depends_on_time:
+            raise ConfigError(f"scene key '{path}' = {format_value(e.source)} depends on t: the "
+                              "initial stress is the state at t = 0")
+        check_field(e, path, {}, geo, [0.0])
 
 
 def _check_flow(scene: Scene, geo: PlaneGeometry) -> None:
@@ -108,6 +149,12 @@ def _check_flow(scene: Scene, geo: PlaneGeometry) -> None:
     if scene.mesh is None:
         raise ConfigError("scene key 'mesh' is required for physics 'flow'")
     times = check_times(scene)
+    if scene.gravity is not None and flow.fluid_density is None:
+        raise ConfigError("scene key 'flow.fluid_density' is required with gravity (the weight "
+                          "of the fluid): give it in kg/m³, e.g. 1000")
+    if scene.gravity is None and flow.fluid_density is not None:
+        raise ConfigError("scene key 'flow.fluid_density' has no effect without gravity: give "
+                          "gravity or remove the fluid density")
     _check_flow_permeability(flow.permeability, geo, times)
     check_field(flow.source, "flow.source", field_meta(Flow, "source"), geo, times)
     if scene.time is not None:  # the initial state of a transient run
@@ -136,7 +183,6 @@ def _check_flow(scene: Scene, geo: PlaneGeometry) -> None:
             check_expression(getattr(ff, name), points, f"{path}.{name}",
                         field_meta(FractureFlow, name), times)
     _check_flow_boundaries(scene, geo)
-    _check_probes(scene, geo)
 
 
 #: Fracture fields of ``flow`` and the ``flow.fractures`` entry overriding each on one fracture.
@@ -256,6 +302,8 @@ def check_scene(scene: Scene, geo: PlaneGeometry) -> None:
     """
     _check_petsc_keys(scene)
     _check_time(scene)
+    _check_gravity(scene, geo)
+    _check_probes(scene, geo)
     if scene.physics in ("mechanics", "poromechanics"):
         _check_mechanics(scene, geo)
     if scene.physics in ("flow", "poromechanics"):

@@ -28,6 +28,7 @@ from poromech.scene.geometry import (
     read_geometry_files,
 )
 from poromech.scene.schema import Scene
+from poromech.scene.usage import check_keys_used
 
 __all__ = [
     "apply_overrides",
@@ -292,6 +293,7 @@ def scene_from_dict(raw: Mapping) -> Scene:
     except GeometryError as err:
         raise ConfigError(f"{geometry_source(scene)}: {err}") from None
     check_scene(scene, geo)
+    check_keys_used(scene, raw, geo)
     return scene
 
 

@@ -165,6 +165,21 @@ class Material:
         metadata=doc("Biot coefficient b: total stress σ(u) - b p_m I (poromechanics)", "", min=0,
                      max=1),
     )
+    density: Expr | None = field(
+        default=None,
+        metadata=doc("bulk density ρ of the (fluid-saturated) rock: with gravity, the body force "
+                     "ρ g is added to body_force", "kg/m³", min=0),
+    )
+    initial_stress: tuple[Expr, ...] | None = field(
+        default=None,
+        metadata=doc("in-situ total stress σ⁰ at t = 0, tension positive: [σ_xx, σ_yy, σ_xy] "
+                     "(2D) or [σ_xx, σ_yy, σ_zz, σ_yz, σ_xz, σ_xy] (3D). Total, as field "
+                     "measurements and the overburden give it: the stress is σ⁰ + σ(u) - b (p_m "
+                     "- p⁰) I, displacements are measured from the initial state, and a fracture "
+                     "carries σ⁰n⁺ + p_f n⁺ at rest. It must be in equilibrium with the body force "
+                     "and the boundary tractions at t = 0 (checked before the first solve); not "
+                     "a function of t", "Pa"),
+    )
 
 
 @dataclass(frozen=True)
@@ -335,6 +350,12 @@ class Flow:
                      "m²")
     )
     viscosity: float = field(default=1e-3, metadata=doc("fluid viscosity η", "Pa·s", gt=0))
+    fluid_density: float | None = field(
+        default=None,
+        metadata=doc("fluid density ρ_f (required with gravity): Darcy's law acts on the "
+                     "potential p - ρ_f g·x, so that a hydrostatic pressure is at rest",
+                     "kg/m³", gt=0),
+    )
     aperture: Expr = field(
         default=Expression(1e-4),
         metadata=doc("fracture aperture d_f; for poromechanics the aperture at contact d₀, and "
@@ -388,7 +409,13 @@ class Flow:
 
 @dataclass(frozen=True)
 class Probe:
-    """A straight line along which fields are sampled to probe_<name>.csv."""
+    """A straight line along which fields are sampled to probe_<name>.csv at every output time.
+
+    Columns: ``time, arc_length, x, y``, then the fields of the physics: displacement ``u_x,
+    u_y`` (mechanics; on a fracture, that of one side), and where the line runs along a fracture
+    its ``jump_n, jump_t, traction_n, traction_t``; ``p_m, p_f`` (flow); all of these and
+    ``porosity`` (poromechanics). Empty where the line leaves the domain or a fracture.
+    """
 
     name: str = field(metadata=doc("probe name (file probe_<name>.csv)"))
     start: tuple[float, float] = field(metadata=doc("start point", "m"))
@@ -398,7 +425,7 @@ class Probe:
     interpolation: Literal["linear", "constant"] = field(
         default="linear",
         metadata=doc("linear: p_m from the HFV cell gradient, p_f linear between face and node "
-                     "values; constant: the cell / face value"),
+                     "values; constant: the cell / face value (flow and poromechanics)"),
     )
 
 
@@ -509,6 +536,12 @@ class Scene:
     contact: Contact = field(default_factory=Contact, metadata=doc("contact on the fractures"))
     fracture_pressure: Expr | None = field(
         default=None, metadata=doc("fluid pressure p_f acting on both fracture faces", "Pa")
+    )
+    gravity: tuple[float, ...] | None = field(
+        default=None,
+        metadata=doc("gravitational acceleration g, one component per coordinate, e.g. [0, -9.81] "
+                     "(2D, y up): the body force ρ g (material.density) and, with flow, Darcy's "
+                     "law on p - ρ_f g·x (flow.fluid_density)", "m/s²"),
     )
     boundary_conditions: tuple[BoundaryCondition, ...] = field(
         default=(), metadata=doc("mechanical boundary conditions")

@@ -1,0 +1,183 @@
+"""In-situ stress and gravity: a state in equilibrium stays at rest, a fracture carries σ⁰n,
+an imbalance is refused before the first solve, and hydrostatic fluid is at rest."""
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+from poromech.errors import ConfigError
+from poromech.run import Run
+from poromech.scene.loading import scene_from_dict
+
+comm = MPI.COMM_WORLD
+FORMULATIONS = ["nitsche", "mean_nitsche", "stabilized_mixed", "mixed"]
+RHO, G, K0, E = 2500.0, 9.81, 0.8, 2.0e10
+H = 1000.0  # m, depth of the box (surface at y = 0)
+
+
+def lithostatic(**extra) -> dict:
+    """A box under its own weight with the lithostatic stress, rollers, an inclined fault."""
+    raw = {
+        "name": "lithostatic",
+        "physics": "mechanics",
+        "parameters": {"rho": RHO, "g": G, "k0": K0},
+        "geometry": {"domain": {"rectangle": [0.0, -H, H, 0.0]},
+                     "fractures": [{"name": "fault", "points": [[300.0, -700.0],
+                                                                 [700.0, -300.0]]}]},
+        "mesh": {"size": 100.0, "fracture_size": 40.0},
+        "material": {"young": E, "poisson": 0.25, "density": "rho",
+                     "initial_stress": ["k0*rho*g*y", "rho*g*y", 0.0]},
+        "gravity": [0.0, -G],
+        "contact": {"formulation": "nitsche", "friction_coefficient": 0.6},
+        "boundary_conditions": [{"boundary": "left", "displacement": [0.0, None]},
+                                {"boundary": "right", "displacement": [0.0, None]},
+                                {"boundary": "bottom", "displacement": [None, 0.0]}],
+    }
+    raw.update(extra)
+    return raw
+
+
+def solve(raw: dict):
+    """Summary, displacement values and fracture face fields (with midpoints) of a run."""
+    with Run(scene_from_dict(raw)) as run:
+        summary = run.execute()
+        model, faces = run.physics.model, run.mesh.fractures
+        return summary, model.u.x.array.copy(), model.face_fields(), faces
+
+
+def traction_of(sigma: np.ndarray, faces) -> tuple[np.ndarray, np.ndarray]:
+    """``σ n⁺·n⁺`` and ``σ n⁺·τ`` per face for stresses ``(n, 2, 2)`` at the face midpoints."""
+    n, t = faces.normal, faces.tangents[:, 0]
+    sn = np.einsum("fij,fj->fi", sigma, n)
+    return np.einsum("fi,fi->f", sn, n), np.einsum("fi,fi->f", sn, t)
+
+
+@pytest.mark.parametrize("formulation", FORMULATIONS)
+def test_lithostatic_box_stays_at_rest_and_the_fault_carries_it(formulation):
+    """Weight, lithostatic σ⁰ and rollers: no displacement (to the solver tolerance, against the
+    1.2 m the weight would cause without σ⁰), and the fault's tractions are σ⁰n (linear along
+    each face, so its face mean is its midpoint value)."""
+    summary, u, values, faces = solve(lithostatic(contact={"formulation": formulation,
+                                                            "friction_coefficient": 0.6}))
+    assert summary["initial_stress_imbalance"]["relative"] < 1e-12
+    sag = RHO * G * H**2 / E  # the weight's displacement scale, 1.2 m
+    assert comm.allreduce(float(np.abs(u).max(initial=0.0)), op=MPI.MAX) < 1e-7 * sag
+    y = faces.midpoint[:, 1]
+    sigma = np.zeros((len(y), 2, 2))
+    sigma[:, 0, 0], sigma[:, 1, 1] = K0 * RHO * G * y, RHO * G * y
+    tn, tt = traction_of(sigma, faces)
+    scale = RHO * G * H  # round-off of the solve: the face-mean formulations solve for the
+    assert np.abs(values["traction_n"] - tn).max(initial=0.0) < 1e-6 * scale  # tractions
+    assert np.abs(values["traction_t"] - tt).max(initial=0.0) < 1e-6 * scale
+    states = summary["solves"][0]
+    assert states["converged"]
+
+
+@pytest.mark.parametrize("formulation", ["nitsche", "mixed"])
+def test_prestressed_fracture_carries_sigma0_n_exactly(formulation):
+    """A uniform, sheared σ⁰ in a clamped box with no other load: u = 0, and every face of the
+    inclined fracture carries exactly σ⁰n (normal and tangential, below the friction bound)."""
+    s0 = np.array([[-3.0e7, 4.0e6], [4.0e6, -2.0e7]])
+    raw = lithostatic(
+        material={"young": E, "poisson": 0.25,
+                  "initial_stress": [s0[0, 0], s0[1, 1], s0[0, 1]]},
+        contact={"formulation": formulation, "friction_coefficient": 0.6},
+        boundary_conditions=[{"boundary": b, "displacement": [0.0, 0.0]}
+                             for b in ("left", "right", "bottom", "top")])
+    del raw["gravity"]
+    summary, u, values, faces = solve(raw)
+    tn, tt = traction_of(np.broadcast_to(s0, (len(faces.facets), 2, 2)), faces)
+    assert comm.allreduce(float(np.abs(u).max(initial=0.0)), op=MPI.MAX) < 1e-12
+    assert np.allclose(values["traction_n"], tn, rtol=1e-10, atol=0)
+    assert np.allclose(values["traction_t"], tt, rtol=1e-10, atol=0)
+    assert np.all(np.abs(tt) < 0.6 * np.abs(tn))  # stick: the prestress holds
+
+
+def test_an_initial_stress_out_of_balance_is_refused_with_where():
+    """A traction-free top where σ⁰n ≠ 0 (the overburden left out), and a density that does not
+    carry the stress gradient: refused before the first solve, naming where it is largest."""
+    raw = lithostatic(material={"young": E, "poisson": 0.25, "density": "rho",
+                                "initial_stress": ["k0*rho*g*(y - 100)", "rho*g*(y - 100)",
+                                                   0.0]})
+    with pytest.raises(ConfigError, match="not in equilibrium.*on boundary 'top'"):
+        solve(raw)
+    raw = lithostatic(material={"young": E, "poisson": 0.25, "density": "0.5*rho",
+                                "initial_stress": ["k0*rho*g*y", "rho*g*y", 0.0]})
+    with pytest.raises(ConfigError, match="not in equilibrium.*in the interior"):
+        solve(raw)
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    ({"gravity": None}, "'material.density' has no effect without gravity"),
+    ({"material": {"young": E, "poisson": 0.25, "initial_stress": [0.0, 0.0, 0.0]}},
+     "'material.density' is required with gravity"),
+    ({"material": {"young": E, "poisson": 0.25, "density": 1.0,
+                   "initial_stress": [0.0, 0.0]}}, "has 2 components: a 2D stress has 3"),
+    ({"material": {"young": E, "poisson": 0.25, "density": 1.0,
+                   "initial_stress": ["1e6*t", 0.0, 0.0]}}, "depends on t"),
+    ({"gravity": [0.0, -9.81, 0.0]}, "'gravity' = \\[0.0, -9.81, 0.0\\] must have 2 components"),
+])
+def test_weight_and_stress_input_is_checked(change, message):
+    raw = lithostatic(**change)
+    if raw.get("gravity") is None:
+        raw.pop("gravity")
+    with pytest.raises(ConfigError, match=message):
+        scene_from_dict(raw)
+
+
+def hydrostatic(physics: str = "flow", **extra) -> dict:
+    """A water-saturated column with gravity: pressure fixed on top, impervious elsewhere."""
+    raw = {
+        "name": "hydrostatic",
+        "physics": physics,
+        "geometry": {"domain": {"rectangle": [0.0, -10.0, 2.0, 0.0]},
+                     "fractures": [{"name": "f", "points": [[0.3, -8.0], [1.5, -2.0]]}]},
+        "mesh": {"size": 0.5, "fracture_size": 0.25},
+        "gravity": [0.0, -9.81],
+        "flow": {"permeability": [1.0e-13, 2.0e-14], "fluid_density": 1000.0,
+                 "aperture": 1.0e-4,
+                 "boundary_conditions": [{"boundary": "top", "pressure": 1.0e5}]},
+    }
+    raw.update(extra)
+    return raw
+
+
+def test_hydrostatic_fluid_is_at_rest():
+    """Darcy on the potential p - ρ_f g·x: the steady pressure is hydrostatic in the matrix and
+    in the fracture (HFV is exact for it), and nothing flows."""
+    with Run(scene_from_dict(hydrostatic())) as run:
+        run.execute()
+        pb = run.physics.problem
+        exact = 1.0e5 - 1000.0 * 9.81 * pb.dofs.points[:, 1]
+        assert np.abs(pb.p - exact).max() < 1e-8 * 1.0e5
+        from poromech.flow.balance import compute_fluxes
+
+        fluxes = compute_fluxes(pb)
+        scale = 1e-13 / 1e-3 * 1000.0 * 9.81  # K ρ_f g / η: the flux gravity would drive
+        assert np.abs(fluxes.cell).max() < 1e-9 * scale
+
+
+def test_poroelastic_column_at_rest_under_gravity():
+    """Lithostatic σ⁰ (total) with a hydrostatic p⁰, transient: nothing moves, nothing flows,
+    the pressure stays hydrostatic over the steps, and the fixed point needs one iteration."""
+    raw = hydrostatic(
+        "poromechanics",
+        parameters={"rho": 2300.0, "g": 9.81, "k0": 0.7},
+        material={"young": 1.0e10, "poisson": 0.25, "biot": 0.8, "density": "rho",
+                  "initial_stress": ["k0*rho*g*y", "rho*g*y", 0.0]},
+        contact={"formulation": "nitsche", "friction_coefficient": 0.6},
+        boundary_conditions=[{"boundary": "left", "displacement": [0.0, None]},
+                             {"boundary": "right", "displacement": [0.0, None]},
+                             {"boundary": "bottom", "displacement": [None, 0.0]}],
+        time={"final": 100.0, "steps": 2})
+    # the fluid pressure is 0 at the surface, as the total stress: the fracture stays closed
+    raw["flow"].update(biot_modulus=1.0e10, porosity=0.2, initial_pressure="-1000*9.81*y",
+                       boundary_conditions=[{"boundary": "top", "pressure": 0.0}])
+    with Run(scene_from_dict(raw)) as run:
+        summary = run.execute()
+        pb, u = run.physics.flow, run.physics.model.u.x.array
+        exact = -1000.0 * 9.81 * pb.dofs.points[:, 1]
+        assert np.abs(pb.p - exact).max() < 1e-6 * 1000.0 * 9.81 * 10.0
+        sag = 2300.0 * 9.81 * 10.0**2 / 1.0e10
+        assert np.abs(u).max(initial=0.0) < 1e-7 * sag
+    assert all(r["converged"] and r["g_evaluations"] <= 2 for r in summary["solves"])
