@@ -187,12 +187,12 @@ def _load(args, comm):
 def _check(args, petsc_opts: dict, comm):
     """Everything that can be refused before meshing; returns scene, mapping and estimate."""
     from poromech.petsc_options import check_petsc_options
-    from poromech.scene.geometry import plane_geometry
+    from poromech.scene.geometry import scene_geometry
     from poromech.scene.resources import check_resources
 
     scene, raw = _load(args, comm)
     check_petsc_options(petsc_opts, scene)
-    est = check_resources(scene, plane_geometry(scene), comm, force=args.force)
+    est = check_resources(scene, scene_geometry(scene), comm, force=args.force)
     return scene, raw, est
 
 

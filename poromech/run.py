@@ -30,7 +30,7 @@ from poromech.mesh.fractured import FracturedMesh, distribute_mesh
 from poromech.mesh.generate import generate_mesh
 from poromech.physics import Physics
 from poromech.scene.fields import validate_fields
-from poromech.scene.geometry import mesh_sizes, plane_geometry
+from poromech.scene.geometry import mesh_sizes, scene_geometry
 from poromech.scene.schema import Scene
 from poromech.stepping import Interrupted, run_steps, stop_signals
 from poromech.timing import Timer
@@ -83,13 +83,17 @@ def build_mesh(scene: Scene, comm: MPI.Comm, owner=None) -> FracturedMesh:
 
     A failure of gmsh or of the mesh file on rank 0 is raised on every rank.
     """
-    geo = plane_geometry(scene)
+    geo = scene_geometry(scene)
 
     def arrays():
         if scene.geometry.mesh is not None:
             from poromech.mesh.imported import mesh_file_arrays
 
             return mesh_file_arrays(scene.geometry.mesh, geo, scene.mesh.refinement)
+        if geo.dim == 3:
+            from poromech.mesh.generate3d import generate_mesh_3d
+
+            return generate_mesh_3d(geo, mesh_sizes(scene))
         return generate_mesh(geo, mesh_sizes(scene))
 
     return distribute_mesh(comm, geo, arrays, owner)

@@ -186,9 +186,9 @@ def test_aperture_change_is_accumulated(tmp_path):
     raw = flow_scene(aperture="1e-4*(1 + t/10)")
     raw["time"] = {"final": 4.0, "steps": 2}
     summary = run(raw, tmp_path)
-    from poromech.scene.geometry import plane_geometry
+    from poromech.scene.geometry import scene_geometry
 
-    length = plane_geometry(scene_from_dict(raw)).fracture_lengths().sum()
+    length = scene_geometry(scene_from_dict(raw)).fracture_lengths().sum()
     for s in summary["flow"]["solves"]:
         bal = s["mass_balance"]
         assert bal["storage_rate"] == pytest.approx(1e-5 * length, rel=1e-9)

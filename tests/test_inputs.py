@@ -254,11 +254,11 @@ def test_meshes_too_large_for_memory(tmp_path, capsys):
 
 def test_cell_estimate_matches_gmsh():
     from poromech.mesh.generate import MeshSizes, generate_mesh
-    from poromech.scene.geometry import plane_geometry
+    from poromech.scene.geometry import scene_geometry
     from poromech.scene.resources import estimate_cells
 
     scene = load_scene(None)
-    geo, m = plane_geometry(scene), scene.mesh
+    geo, m = scene_geometry(scene), scene.mesh
     sizes = MeshSizes(m.size, m.fracture_size, m.fracture_size, 4 * m.size)
     cells = len(generate_mesh(geo, sizes).cells)
     est = estimate_cells(geo, sizes.size, sizes.fracture_size, sizes.tip_size, sizes.transition, 0)
@@ -305,9 +305,9 @@ def _mesh(scene):
 
     from poromech.mesh.fractured import create_fractured_mesh
     from poromech.mesh.generate import MeshSizes, generate_mesh
-    from poromech.scene.geometry import plane_geometry
+    from poromech.scene.geometry import scene_geometry
 
-    geo, m = plane_geometry(scene), scene.mesh
+    geo, m = scene_geometry(scene), scene.mesh
     f = m.fracture_size or m.size
     arrays = generate_mesh(geo, MeshSizes(m.size, f, f, 4 * m.size))
     return create_fractured_mesh(MPI.COMM_WORLD, geo, arrays), arrays
@@ -453,7 +453,7 @@ def test_fields_checked_at_mesh_points_under_mpi():
         import dolfinx_solver
         from mpi4py import MPI
         from poromech.errors import ConfigError
-        from poromech.scene.geometry import plane_geometry
+        from poromech.scene.geometry import scene_geometry
         from poromech.scene.loading import scene_from_dict
         from poromech.scene.expressions import compile_expression
         from poromech.scene.fields import validate_fields
@@ -461,7 +461,7 @@ def test_fields_checked_at_mesh_points_under_mpi():
         from poromech.mesh.generate import MeshSizes, generate_mesh
         comm = MPI.COMM_WORLD
         scene = scene_from_dict({mechanics_scene(mesh={"size": 0.2})!r})
-        geo = plane_geometry(scene)
+        geo = scene_geometry(scene)
         arrays = generate_mesh(geo, MeshSizes(0.2, 0.2, 0.2, 0.8)) if comm.rank == 0 else None
         fm = create_fractured_mesh(comm, geo, arrays)
         c = comm.bcast([float(v) for v in arrays.x[arrays.cells[7]].mean(axis=0)]

@@ -13,7 +13,7 @@ from poromech.geometry.plane import segment_normals
 from poromech.mesh.fractured import FRACTURE_TAG, crack_vertices, cracked_space, fracture_measure
 from poromech.mesh.generate import generate_mesh
 from poromech.run import build_mesh
-from poromech.scene.geometry import mesh_sizes, plane_geometry
+from poromech.scene.geometry import mesh_sizes, scene_geometry
 from poromech.scene.loading import scene_from_dict
 
 comm = MPI.COMM_WORLD
@@ -57,7 +57,7 @@ def test_copy_counts(network, degree):
 def test_crack_vertices_counts():
     """The star-component rule on raw arrays: extra copies = sum over vertices of (copies-1)."""
     scene = scene_from_dict(mechanics_scene())
-    arrays = generate_mesh(plane_geometry(scene), mesh_sizes(scene))
+    arrays = generate_mesh(scene_geometry(scene), mesh_sizes(scene))
     cracked, n = crack_vertices(arrays.cells, arrays.fracture_facets, len(arrays.x))
     fverts = np.unique(arrays.fracture_facets)
     copies = np.array([len(np.unique(cracked[arrays.cells == v])) for v in fverts])
@@ -123,7 +123,7 @@ def test_refinement_family():
     for m in range(3):
         scene = scene_from_dict(mechanics_scene(mesh={"size": 0.2, "fracture_size": 0.1,
                                                       "refinement": m}))
-        a = generate_mesh(plane_geometry(scene), mesh_sizes(scene))
+        a = generate_mesh(scene_geometry(scene), mesh_sizes(scene))
         counts.append((len(a.cells), len(a.fracture_facets)))
     for (c0, f0), (c1, f1) in zip(counts, counts[1:], strict=False):
         assert c1 == 4 * c0 and f1 == 2 * f0
@@ -134,7 +134,7 @@ def test_six_fracture_family_matches_paper():
     from poromech.scene.loading import load_scene
 
     scene = load_scene(None)
-    a = generate_mesh(plane_geometry(scene), mesh_sizes(scene))
+    a = generate_mesh(scene_geometry(scene), mesh_sizes(scene))
     assert len(a.fracture_facets) in range(84, 93)
     assert abs(len(a.cells) - 2855) / 2855 < 0.06
 
@@ -146,7 +146,7 @@ def test_parallel_dofs_and_partition_on_fracture():
     import dolfinx_solver
     from mpi4py import MPI
     from poromech.scene.loading import scene_from_dict
-    from poromech.scene.geometry import plane_geometry
+    from poromech.scene.geometry import scene_geometry
     from poromech.mesh.generate import generate_mesh
     from poromech.mesh.fractured import create_fractured_mesh, cracked_space
     from poromech.scene.geometry import mesh_sizes
@@ -154,7 +154,7 @@ def test_parallel_dofs_and_partition_on_fracture():
     from conftest import mechanics_scene
     comm = MPI.COMM_WORLD
     scene = scene_from_dict(mechanics_scene())
-    geo = plane_geometry(scene)
+    geo = scene_geometry(scene)
     arrays = generate_mesh(geo, mesh_sizes(scene)) if comm.rank == 0 else None
     owner = None
     if comm.rank == 0:

@@ -23,7 +23,7 @@ from poromech.mesh.fractured import create_fractured_mesh
 from poromech.mesh.generate import generate_mesh
 from poromech.mesh.imported import import_mesh
 from poromech.run import build_mesh, run_scene
-from poromech.scene.geometry import mesh_sizes, plane_geometry
+from poromech.scene.geometry import mesh_sizes, scene_geometry
 from poromech.scene.loading import load_scene, scene_from_dict
 
 SIX = [str(i) for i in range(1, 7)]
@@ -120,9 +120,9 @@ def integral(rows: np.ndarray, col: int) -> float:
 
 def test_msh_example_has_the_yaml_geometry():
     """meshes/six_fractures.msh (and the .geo it came from) give meshes/six_fractures.yaml."""
-    yaml_geo = plane_geometry(load_scene("six_fractures_mechanics"))
+    yaml_geo = scene_geometry(load_scene("six_fractures_mechanics"))
     msh = load_scene("six_fractures_msh")
-    geo = plane_geometry(msh)
+    geo = scene_geometry(msh)
     assert geo.boundary_names == yaml_geo.boundary_names
     assert geo.fracture_names == yaml_geo.fracture_names
     assert np.array_equal(geo.boundary, yaml_geo.boundary)
@@ -172,7 +172,7 @@ def test_csv_example_is_the_yaml_scene(tmp_path):
     """configs/flemisch_case2_csv.yaml: same geometry, mesh and pressures as flemisch_case2."""
     yaml_scene = load_scene("flemisch_case2", ["output.xdmf=false"])
     csv_scene = load_scene("flemisch_case2_csv", ["output.xdmf=false"])
-    ga, gb = plane_geometry(yaml_scene), plane_geometry(csv_scene)
+    ga, gb = scene_geometry(yaml_scene), scene_geometry(csv_scene)
     assert ga.fracture_names == gb.fracture_names
     assert all(np.array_equal(p, q) for p, q in zip(ga.fractures, gb.fractures, strict=True))
     ma = generate_mesh(ga, mesh_sizes(yaml_scene))
@@ -205,7 +205,7 @@ def test_csv_layouts_give_the_yaml_network(tmp_path, layout):
     (tmp_path / "net.csv").write_text("\n".join(lines) + "\n")
     raw = mechanics_scene(geometry={"domain": {"rectangle": [0.0, 0.0, 2.0, 1.0]},
                                     "fracture_file": str(tmp_path / "net.csv")})
-    geo, ref = plane_geometry(scene_from_dict(raw)), plane_geometry(base)
+    geo, ref = scene_geometry(scene_from_dict(raw)), scene_geometry(base)
     assert geo.fracture_names == ref.fracture_names
     assert all(np.array_equal(p, q) for p, q in zip(geo.fractures, ref.fractures, strict=True))
 
@@ -220,7 +220,7 @@ def test_csv_unnamed_segments_and_relative_path(tmp_path):
 
     (tmp_path / "scene.yaml").write_text(yaml.safe_dump(raw))
     scene = load_scene(tmp_path / "scene.yaml")
-    assert plane_geometry(scene).fracture_names == ("1", "2")
+    assert scene_geometry(scene).fracture_names == ("1", "2")
     assert scene.geometry.fracture_file == str((tmp_path / "data" / "net.csv").resolve())
 
 
@@ -251,7 +251,7 @@ def network_files(tmp_path_factory):
     """The conftest network (tips, corner, T, X, boundary) meshed by poromech and exported."""
     d = tmp_path_factory.mktemp("network")
     scene = scene_from_dict(mechanics_scene())
-    geo = plane_geometry(scene)
+    geo = scene_geometry(scene)
     arrays = generate_mesh(geo, mesh_sizes(scene))
     files = {kind: _export(arrays, geo, d / f"network.{ext}", kind)
              for kind, ext in (("msh", "msh"), ("inp", "inp"))}
@@ -388,17 +388,17 @@ def test_curved_geo_domain_and_fracture(tmp_path):
 def test_group_orientation_default_and_start(square):
     x, cells, groups, p, d = square
     path = write_msh(d / "m.msh", x, cells, groups)
-    geo = plane_geometry(scene_from_dict(mesh_scene(path)))
+    geo = scene_geometry(scene_from_dict(mesh_scene(path)))
     assert geo.boundary_names == SIDES  # default: the groups on the boundary, own names
     assert np.array_equal(geo.fractures[0], [[0.25, 0.5], [0.75, 0.5]])  # one merged segment
-    geo = plane_geometry(scene_from_dict(mesh_scene(path, starts={"F": [0.75, 0.5]})))
+    geo = scene_geometry(scene_from_dict(mesh_scene(path, starts={"F": [0.75, 0.5]})))
     assert np.array_equal(geo.fractures[0], [[0.75, 0.5], [0.25, 0.5]])
     both = {**groups, "F": [(p(1, 2), p(2, 2)), (p(3, 2), p(2, 2))]}
     path = write_msh(d / "both.msh", x, cells, both)
     msg = error(mesh_scene(path))
     assert "geometry.mesh.fractures.0" in msg and "both ways" in msg
     assert "geometry.mesh.starts.F" in msg
-    geo = plane_geometry(scene_from_dict(mesh_scene(path, starts={"F": [0.25, 0.5]})))
+    geo = scene_geometry(scene_from_dict(mesh_scene(path, starts={"F": [0.25, 0.5]})))
     assert np.array_equal(geo.fractures[0], [[0.25, 0.5], [0.75, 0.5]])
 
 
@@ -409,7 +409,7 @@ def test_boundary_names_mapping_and_corner_fracture(square):
     path = write_msh(d / "m.msh", x, cells, groups)
     raw = mesh_scene(path, boundaries={"bottom": ["bottom"], "top": ["top"],
                                        "sides": ["left", "right"]})
-    geo = plane_geometry(scene_from_dict(raw))
+    geo = scene_geometry(scene_from_dict(raw))
     assert geo.boundary_names == ("bottom", "sides", "top", "sides")
     assert np.array_equal(geo.fractures[0], [[0.25, 0.25], [0.5, 0.5], [1.0, 0.5]])
 
@@ -620,8 +620,8 @@ def test_csv_junctions_and_boundary_ends_are_accepted(tmp_path):
     (tmp_path / "net.csv").write_text("fracture,x,y\n" + "\n".join(rows) + "\n")
     raw = mechanics_scene(geometry={"domain": {"rectangle": [0.0, 0.0, 2.0, 1.0]},
                                     "fracture_file": str(tmp_path / "net.csv")})
-    geo = plane_geometry(scene_from_dict(raw))
-    ref = plane_geometry(scene_from_dict(mechanics_scene()))
+    geo = scene_geometry(scene_from_dict(raw))
+    ref = scene_geometry(scene_from_dict(mechanics_scene()))
     assert geo.fracture_names == ref.fracture_names
     assert all(np.array_equal(p, q) for p, q in zip(geo.fractures, ref.fractures, strict=True))
     raw["geometry"]["fractures"] = net

@@ -18,14 +18,14 @@ from mpi4py import MPI
 sys.path.insert(0, "tests")
 from conftest import mechanics_scene
 from poromech.scene.loading import scene_from_dict
-from poromech.scene.geometry import plane_geometry
+from poromech.scene.geometry import scene_geometry
 from poromech.mesh.generate import generate_mesh
 from poromech.mesh.fractured import create_fractured_mesh
 from poromech.run import Run
 from poromech.scene.geometry import mesh_sizes
 comm = MPI.COMM_WORLD
 scene = scene_from_dict(json.loads('''SCENE'''))
-geo = plane_geometry(scene)
+geo = scene_geometry(scene)
 arrays = generate_mesh(geo, mesh_sizes(scene)) if comm.rank == 0 else None
 owner = None
 if comm.rank == 0:

@@ -75,6 +75,12 @@ class PlaneGeometry:
         """
         return np.column_stack([normals[:, 1], -normals[:, 0]])[:, None, :]
 
+    def face_frames(self, fracture: npt.NDArray[np.int32], segment: npt.NDArray[np.int32]
+                    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        """``n⁺`` ``(n, 2)`` and the tangent frame ``(n, 1, 2)`` of faces (fracture, segment)."""
+        normals = self.face_normals(fracture, segment)
+        return normals, self.face_tangents(normals)
+
 
 def segment_normals(points: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """Unit normals ``n⁺`` (left normals) of the segments of a polyline, shape ``(k, 2)``."""

@@ -50,6 +50,12 @@ CSV_COLUMNS = ("time", "fracture", "s", "x", "y", "jump_n", "jump_t", "traction_
 #: The P2 triangle (vertices 0-2, edge midpoints 3 = (1,2), 4 = (0,2), 5 = (0,1)) as four
 #: P1 sub-triangles.
 _P2_SPLIT = np.array([[0, 5, 4], [5, 1, 3], [4, 3, 2], [5, 3, 4]])
+#: The P2 tetrahedron (vertices 0-3, edge midpoints in basix order 4 = (2,3), 5 = (1,3),
+#: 6 = (1,2), 7 = (0,3), 8 = (0,2), 9 = (0,1)) as eight P1 sub-tetrahedra: one at each vertex
+#: and the inner octahedron cut along its diagonal (0,2)-(1,3), all with the parent's
+#: orientation.
+_P2_SPLIT_TET = np.array([[0, 9, 8, 7], [9, 1, 6, 5], [8, 6, 2, 4], [7, 5, 4, 3],
+                          [9, 8, 7, 5], [9, 6, 8, 5], [8, 7, 5, 4], [8, 6, 4, 5]])
 
 
 def displacement_mesh(V: fem.FunctionSpace) -> MeshPiece:
@@ -66,6 +72,8 @@ def displacement_mesh(V: fem.FunctionSpace) -> MeshPiece:
     cell_blocks = imap.local_to_global(V.dofmap.list[:ncells].ravel()).reshape(ncells, -1)
     if cell_blocks.shape[1] == 6:
         cells = cell_blocks[:, _P2_SPLIT].reshape(-1, 3)
+    elif cell_blocks.shape[1] == 10:
+        cells = cell_blocks[:, _P2_SPLIT_TET].reshape(-1, 4)
     else:
         cells = cell_blocks
     first_cell = msh.comm.exscan(len(cells)) or 0
@@ -85,9 +93,20 @@ def fracture_mesh(fm: FracturedMesh) -> MeshPiece:
     """The owned fracture faces as separate segments (points ``2i``, ``2i+1`` for face ``i``).
 
     The first point of a face is the one nearer to the start of its fracture polyline; cell ids
-    are the global fracture face numbers (sorted by fracture, then arc length).
+    are the global fracture face numbers (sorted by fracture, then arc length). In 3D separate
+    triangles (points ``3i ... 3i+2``), counter-clockwise about ``n⁺``.
     """
     faces = fm.fractures
+    if fm.msh.topology.dim == 3:
+        fm.msh.topology.create_connectivity(2, 0)
+        nodes = dolfinx.mesh.entities_to_geometry(fm.msh, 2, faces.facets)
+        x = fm.msh.geometry.x[nodes] if len(faces.facets) else np.empty((0, 3, 3))
+        area = np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0])
+        swap = np.einsum("ni,ni->n", area, faces.normal) < 0
+        x[swap] = x[swap][:, ::-1]
+        ids = faces.index.astype(np.int64)
+        points = np.column_stack([3 * ids, 3 * ids + 1, 3 * ids + 2])
+        return MeshPiece(points.ravel(), x.reshape(-1, 3), ids, points)
     nodes = dolfinx.mesh.entities_to_geometry(fm.msh, 1, faces.facets)
     x = fm.msh.geometry.x[nodes][:, :, :2] if len(faces.facets) else np.empty((0, 2, 2))
     tangent = faces.tangents[:, 0]
@@ -125,7 +144,9 @@ class FractureTable:
     def __init__(self, fm: FracturedMesh, path: Path, columns: tuple[str, ...],
                  resume_until: float | None = None):
         self.fm, self.path, self.comm = fm, Path(path), fm.comm
-        self.columns = ("time", "fracture", "s", "x", "y", *columns)
+        #: Columns locating a face: arc length and midpoint in 2D, the midpoint in 3D.
+        self.place = ("s", "x", "y") if fm.msh.topology.dim == 2 else ("x", "y", "z")
+        self.columns = ("time", "fracture", *self.place, *columns)
         root_write(self.comm, self._start, resume_until)
 
     def _start(self, resume_until: float | None) -> None:
@@ -139,9 +160,12 @@ class FractureTable:
     def write(self, t: float, values: dict[str, npt.NDArray]) -> None:
         """Append the rows of time ``t`` from owned face values (one array per column)."""
         faces = self.fm.fractures
-        data = np.column_stack([faces.index, faces.fracture, faces.s, faces.midpoint,
+        place = [faces.s, faces.midpoint] if len(self.place) == 3 and self.place[0] == "s" \
+            else [faces.midpoint]
+        start = 2 + len(self.place)
+        data = np.column_stack([faces.index, faces.fracture, *place,
                                 *[np.asarray(values[c], dtype=np.float64)
-                                  for c in self.columns[5:]]])
+                                  for c in self.columns[start:]]])
         gathered = self.comm.gather(data, root=0)
         root_write(self.comm, self._append, t, gathered)
 

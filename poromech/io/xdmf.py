@@ -46,7 +46,7 @@ __all__ = [
 ]
 
 #: XDMF topology names of the supported cell types (nodes per cell).
-_TOPOLOGY = {3: "Triangle", 2: "Polyline"}
+_TOPOLOGY = {3: "Triangle", 2: "Polyline", 4: "Tetrahedron"}
 
 
 @contextlib.contextmanager
@@ -145,7 +145,8 @@ class XDMFSeries:
         self.num_points = int(comm.allreduce(int(mesh.point_ids.max(initial=-1)), op=MPI.MAX)) + 1
         self.num_cells = int(comm.allreduce(int(mesh.cell_ids.max(initial=-1)), op=MPI.MAX)) + 1
         self.nodes_per_cell = int(comm.allreduce(mesh.cells.shape[1], op=MPI.MAX))
-        pts = gather_rows(comm, mesh.point_ids, mesh.points[:, :2], self.num_points)
+        self.gdim = int(comm.allreduce(mesh.points.shape[1], op=MPI.MAX))
+        pts = gather_rows(comm, mesh.point_ids, mesh.points[:, :self.gdim], self.num_points)
         cells = gather_rows(comm, mesh.cell_ids, mesh.cells, self.num_cells)
         self.entries: list[_Entry] = []
         root_write(comm, self._start, pts, cells, resume_until)
@@ -222,8 +223,9 @@ class XDMFSeries:
                                  NodesPerElement=str(self.nodes_per_cell))
             self._item(topo, f"{self.stem}.h5:/mesh/cells",
                        (self.num_cells, self.nodes_per_cell), "Int")
-            geo = ET.SubElement(grid, "Geometry", GeometryType="XY")
-            self._item(geo, f"{self.stem}.h5:/mesh/points", (self.num_points, 2), "Float")
+            geo = ET.SubElement(grid, "Geometry", GeometryType="XY" if self.gdim == 2 else "XYZ")
+            self._item(geo, f"{self.stem}.h5:/mesh/points", (self.num_points, self.gdim),
+                       "Float")
             for center, fields, n in (("Node", e.point_fields, self.num_points),
                                       ("Cell", e.cell_fields, self.num_cells)):
                 for key, comps in fields.items():

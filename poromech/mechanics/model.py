@@ -41,7 +41,7 @@ from poromech.mesh.fractured import (
 from poromech.scene.expressions import Expression
 from poromech.scene.schema import Contact, Scene
 
-__all__ = ["FACE_FIELDS", "IMBALANCE_LIMIT", "MechanicsModel", "PressureCoupling",
+__all__ = ["FACE_FIELDS", "FACE_FIELDS_3D", "IMBALANCE_LIMIT", "MechanicsModel", "PressureCoupling",
            "SLIP_TOLERANCE", "STATE_NAMES"]
 
 log = logging.getLogger("poromech")
@@ -51,6 +51,12 @@ log = logging.getLogger("poromech")
 #: (Pa), and the fractions of the face in contact and sliding.
 FACE_FIELDS = ("jump_n", "jump_t", "traction_n", "traction_t", "friction_bound",
                "contact_fraction", "slip_fraction")
+#: The assembled face means in 3D: the tangential jump and traction as vectors in global
+#: coordinates (:meth:`MechanicsModel.face_fields` adds their magnitudes ``jump_t``,
+#: ``traction_t``).
+FACE_FIELDS_3D = ("jump_n", "jump_tx", "jump_ty", "jump_tz", "traction_n", "traction_tx",
+                  "traction_ty", "traction_tz", "friction_bound", "contact_fraction",
+                  "slip_fraction")
 #: Contact states written to the output, by code (see :meth:`MechanicsModel.states`).
 STATE_NAMES = ("open", "stick", "slip")
 #: Relative tolerance of "on the friction bound": a closed face slips when
@@ -358,7 +364,27 @@ class MechanicsModel:
             n=n, young=self.young, poisson=self.poisson, side=self.scene.contact.traction_side,
             fracture_pressure=pf, slip_reference=self.u_prev, matrix_pressure=self.p_m,
             biot=fem.Constant(self.fm.msh, self.biot), initial_stress=self.initial_stress,
+            tangents=self._tangent_frame(),
         )
+
+    def _tangent_frame(self) -> tuple | None:
+        """The tangents ``(τ_1, τ_2)`` of the fractures in 3D, or None in 2D.
+
+        3D: DG0 on the fracture faces, exactly the geometry's frame; 2D: ``τ = (n_y, -n_x)`` is
+        taken from the normal.
+        """
+        if self.fm.msh.topology.dim == 2 or not self.has_fractures:
+            return None
+        faces = self.fm.fractures
+        sub = self.emap.sub_topology_to_topology(faces.facets, inverse=True)
+        frame = []
+        for k in range(2):
+            t = fem.Function(self._dg0(3), name=f"tangent_{k + 1}")
+            dofs = t.function_space.dofmap.list[sub, 0]
+            t.x.array.reshape(-1, 3)[dofs] = faces.tangents[:, k, :]
+            t.x.scatter_forward()
+            frame.append(t("+"))
+        return tuple(frame)
 
     def _initial_stress(self):
         """``σ⁰`` as a symmetric tensor (a constant, or DG of the displacement degree), or None.
@@ -442,7 +468,7 @@ class MechanicsModel:
         ds = ufl.Measure("ds", domain=msh, subdomain_data=tags)
         internal = ufl.inner(self.initial_stress, epsilon(v)) * dx
         load = ufl.dot(self.weight, v) * dx if self.weight is not None else None
-        f = scene.material.body_force
+        f = scene.material.body_force or ()
         if not all(e.is_constant and e.value() == 0.0 for e in f):
             body = ufl.dot(self._vector_input(f), v) * dx
             load = body if load is None else load + body
@@ -525,7 +551,7 @@ class MechanicsModel:
             F0 += initial_stress_form(self.initial_stress, v, dx)
         if self.p_m is not None:
             F0 += biot_stress_form(self.p_m, v, self.kinematics.biot, dx)
-        f = scene.material.body_force
+        f = scene.material.body_force or ()
         if not all(e.is_constant and e.value() == 0.0 for e in f):
             F0 -= ufl.dot(self._vector_input(f), v) * dx
         self.weight = self._weight()
@@ -578,15 +604,26 @@ class MechanicsModel:
         self.faces = self._code_form = None
         if not self.has_fractures:
             return
-        self.faces = fem.Function(self._dg0(len(FACE_FIELDS)), name="fracture")
+        names = self.assembled_face_fields
+        self.faces = fem.Function(self._dg0(len(names)), name="fracture")
         q = ufl.TestFunction(self.faces.function_space)
         fk, c = self.kinematics, self.params
         jn, jt = normal_jump(self.u, fk.n), slip(self.u, fk.frame)
+        zero = 0.0 * jn
         if c.active:
             st = cforms.state_indicators(fk, c, self.u, _plus(self.lam), _plus(self.avg))
-            values = (jn, jt, st.traction_n, st.traction_t, st.bound, st.contact, st.slip)
+            tn, tt, rest = st.traction_n, st.traction_t, (st.bound, st.contact, st.slip)
         else:
-            values = (jn, jt) + (0.0 * jn,) * (len(FACE_FIELDS) - 2)
+            tn, tt, rest = zero, None, (zero,) * 3
+        if self.fm.msh.topology.dim == 2:
+            values = (jn, jt, tn, zero if tt is None else tt, *rest)
+        else:  # tangential vectors in global coordinates: Σ_k (frame component k) τ_k
+            def global_vector(comps):
+                if comps is None:
+                    return (zero,) * 3
+                vec = sum(comps[k] * t for k, t in enumerate(fk.frame))
+                return tuple(vec[i] for i in range(3))
+            values = (jn, *global_vector(jt), tn, *global_vector(tt), *rest)
         dG = cforms.contact_measure(c, self.dG)
         area = ufl.FacetArea(self.fm.msh)("+")  # |σ|: the face means are ∫ val / |σ|
         em = self.entity_maps or None
@@ -677,20 +714,33 @@ class MechanicsModel:
                               posinf=-1.0, neginf=-1.0)
         return np.rint(codes).astype(np.int8)
 
+    @property
+    def assembled_face_fields(self) -> tuple[str, ...]:
+        """:data:`FACE_FIELDS` (2D) or :data:`FACE_FIELDS_3D`."""
+        return FACE_FIELDS if self.fm.msh.topology.dim == 2 else FACE_FIELDS_3D
+
     def face_fields(self) -> dict[str, npt.NDArray[np.float64]]:
         """Owned fracture face values of :data:`FACE_FIELDS`, by name (collective).
 
-        Face means over the contact quadrature, in the order of ``fm.fractures``.
+        Face means over the contact quadrature, in the order of ``fm.fractures``. In 3D also
+        the global components of the tangential jump and traction (:data:`FACE_FIELDS_3D`);
+        ``jump_t`` and ``traction_t`` are then the magnitudes of their face means.
         """
+        names = self.assembled_face_fields
         if self.faces is None:
-            return {name: np.empty(0) for name in FACE_FIELDS}
+            return {name: np.empty(0) for name in (*FACE_FIELDS, *names)}
         self.faces.x.array[:] = 0.0
         fem.assemble_vector(self.faces.x.array, self._faces_form)
         self.faces.x.scatter_reverse(dolfinx.la.InsertMode.add)
         self.faces.x.scatter_forward()
         sub_cells = self.emap.sub_topology_to_topology(self.fm.fractures.facets, inverse=True)
-        vals = self.faces.x.array.reshape(-1, len(FACE_FIELDS))[sub_cells]
-        return {name: vals[:, i] for i, name in enumerate(FACE_FIELDS)}
+        vals = self.faces.x.array.reshape(-1, len(names))[sub_cells]
+        out = {name: vals[:, i] for i, name in enumerate(names)}
+        if names is FACE_FIELDS_3D:
+            for q in ("jump", "traction"):
+                out[f"{q}_t"] = np.linalg.norm(
+                    np.column_stack([out[f"{q}_t{c}"] for c in "xyz"]), axis=1)
+        return out
 
     @staticmethod
     def states(values: dict[str, npt.NDArray[np.float64]]) -> npt.NDArray[np.int8]:

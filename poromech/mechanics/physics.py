@@ -43,6 +43,9 @@ log = logging.getLogger("poromech")
 
 #: Face fields written to ``fractures.xdmf`` and ``fractures.csv`` (besides ``state``).
 WRITTEN_FACE_FIELDS = ("jump_n", "jump_t", "traction_n", "traction_t")
+#: In 3D: the magnitudes and the global components of the tangential jump and traction.
+WRITTEN_FACE_FIELDS_3D = ("jump_n", "jump_t", "jump_tx", "jump_ty", "jump_tz", "traction_n",
+                          "traction_t", "traction_tx", "traction_ty", "traction_tz")
 #: Face fields written to ``fractures.xdmf`` only: the fractions of the face in contact and
 #: sliding (they differ from 0 and 1 only where pointwise Nitsche switches inside a face).
 XDMF_ONLY_FACE_FIELDS = ("contact_fraction", "slip_fraction")
@@ -243,7 +246,7 @@ class MechanicsPhysics:
                                                            fracture_mesh(self.fm), "fractures",
                                                            resume_until)
             if out.fractures_csv and self.model.faces is not None:
-                columns = (*WRITTEN_FACE_FIELDS, "state", *fracture_columns)
+                columns = (*self.written_face_fields, "state", *fracture_columns)
                 self._table = FractureTable(self.fm, Path(outdir) / "fractures.csv", columns,
                                             resume_until)
             faces = self.fm.fractures
@@ -252,20 +255,26 @@ class MechanicsPhysics:
             self._probes = open_probes(self.fm.msh, self.scene.probes, outdir, segments,
                                        resume_until)
 
+    @property
+    def written_face_fields(self) -> tuple[str, ...]:
+        """The face fields of ``fractures.csv`` and ``fractures.xdmf`` in this dimension."""
+        return WRITTEN_FACE_FIELDS if self.fm.msh.topology.dim == 2 else WRITTEN_FACE_FIELDS_3D
+
     def probe_columns(self, sampler, faces: dict[str, np.ndarray] | None) -> dict:
         """Displacement components and, along fractures, the written face fields (rank 0)."""
         u = sampler.function(self.model.u)
         d = self.fm.msh.geometry.dim
         out = {f"u_{c}": None if u is None else u[:, k] for k, c in enumerate("xyz"[:d])}
         if faces is not None:
-            for name in WRITTEN_FACE_FIELDS:
+            for name in self.written_face_fields:
                 out[name] = sampler.faces(faces[name])
         return out
 
     def face_output(self) -> dict[str, np.ndarray]:
         """The written face fields and states of the owned fracture faces (collective)."""
         values = self.model.face_fields()
-        out = {name: values[name] for name in (*WRITTEN_FACE_FIELDS, *XDMF_ONLY_FACE_FIELDS)}
+        out = {name: values[name] for name in (*self.written_face_fields,
+                                               *XDMF_ONLY_FACE_FIELDS)}
         out["state"] = self.model.states(values)
         return out
 

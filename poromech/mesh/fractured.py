@@ -26,14 +26,16 @@ import numpy.typing as npt
 import ufl
 from dolfinx.io.utils import distribute_entity_data
 from mpi4py import MPI
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
+from poromech.geometry.box import BoxGeometry
 from poromech.geometry.plane import PlaneGeometry
+from poromech.mesh.cracking import crack_vertices, facet_table
 from poromech.mesh.generate import MeshArrays
 from poromech.parallel import agree
 
 __all__ = [
+    "FRACTURE_TAG",
+    "FRACTURE_TAG_OFFSET",
     "FractureFaces",
     "FracturedMesh",
     "crack_vertices",
@@ -48,17 +50,11 @@ __all__ = [
 #: Subdomain id of the fracture network in the interior facet measure.
 FRACTURE_TAG = 1
 
+#: Fracture ``j`` alone has subdomain id ``FRACTURE_TAG_OFFSET + j`` (:func:`fracture_measure`).
+FRACTURE_TAG_OFFSET = 10
+
 #: DOLFINx cell names by number of vertices of a simplex cell.
 _SIMPLEX = {3: "triangle", 4: "tetrahedron"}
-
-
-def facet_table(cell: str) -> npt.NDArray[np.int64]:
-    """Local vertices of each facet of a reference cell, ``(facets, vertices per facet)``.
-
-    From basix: on simplices facet ``i`` is opposite vertex ``i``.
-    """
-    topology = basix.topology(basix.CellType[cell])
-    return np.array(topology[len(topology) - 2], dtype=np.int64)
 
 
 def face_size(msh: dolfinx.mesh.Mesh):
@@ -69,58 +65,6 @@ def face_size(msh: dolfinx.mesh.Mesh):
     if msh.topology.dim == 2:
         return ufl.FacetArea(msh)
     return ufl.MaxFacetEdgeLength(msh)
-
-
-def crack_vertices(
-    cells: npt.NDArray[np.int64], fracture_facets: npt.NDArray[np.int64], num_nodes: int
-) -> tuple[npt.NDArray[np.int64], int]:
-    """Split fracture vertices into one copy per connected component of their cell star.
-
-    Args:
-        cells: Triangle nodes, ``(num_cells, 3)``.
-        fracture_facets: Nodes of the fracture faces, ``(num_faces, 2)``.
-        num_nodes: Number of mesh nodes.
-
-    (Triangles: the local facets and the pair key are those of a 2D mesh.)
-
-    Returns:
-        The cells in cracked vertex numbering (copy 0 of a node keeps the node number, further
-        copies are numbered from ``num_nodes`` on) and the number of cracked vertices.
-    """
-    nc = len(cells)
-    edges = cells[:, facet_table("triangle")]  # (nc, 3, 2) node pairs, local facet order
-    lo, hi = edges.min(axis=2).ravel(), edges.max(axis=2).ravel()
-    key = lo * num_nodes + hi
-    fkey = np.sort(fracture_facets, axis=1)
-    fkey = fkey[:, 0] * num_nodes + fkey[:, 1]
-    order = np.argsort(key, kind="stable")
-    sk = key[order]
-    pair = np.flatnonzero(sk[1:] == sk[:-1])
-    first, second = order[pair], order[pair + 1]  # flat (cell, local facet) indices
-    keep = ~np.isin(sk[pair], fkey)
-    first, second = first[keep], second[keep]
-    c1, f1 = np.divmod(first, 3)
-    c2, f2 = np.divmod(second, 3)
-    rows, cols = [], []
-    for k in range(2):  # both vertices of the shared edge
-        node = edges[c1, f1, k]
-        j1 = np.argmax(cells[c1] == node[:, None], axis=1)
-        j2 = np.argmax(cells[c2] == node[:, None], axis=1)
-        rows.append(3 * c1 + j1)
-        cols.append(3 * c2 + j2)
-    rows, cols = np.concatenate(rows), np.concatenate(cols)
-    graph = coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols)), shape=(3 * nc, 3 * nc))
-    ncomp, label = connected_components(graph, directed=False)
-    first_corner = np.full(ncomp, 3 * nc, dtype=np.int64)
-    np.minimum.at(first_corner, label, np.arange(3 * nc))
-    comp_node = cells.ravel()[first_corner]
-    order = np.lexsort((np.arange(ncomp), comp_node))
-    new_group = np.concatenate([[True], comp_node[order][1:] != comp_node[order][:-1]])
-    cracked = np.empty(ncomp, dtype=np.int64)
-    cracked[order[new_group]] = comp_node[order][new_group]
-    extra = order[~new_group]
-    cracked[extra] = num_nodes + np.arange(len(extra))
-    return cracked[label].reshape(nc, 3), num_nodes + len(extra)
 
 
 @dataclass(frozen=True)
@@ -168,19 +112,20 @@ class FracturedMesh:
 
     Attributes:
         msh: The connected mesh (ghosted by shared facet).
-        geometry: The plane geometry it was built from.
+        geometry: The geometry it was built from (plane or box).
         cracked: Topology with duplicated fracture vertices (same local cells as ``msh``).
         cracked_cells: Cracked (duplicated) global vertex ids of the local cells, in the vertex
-            order of ``msh`` (owned then ghost cells), ``(num_local_cells, 3)``.
+            order of ``msh`` (owned then ghost cells), ``(num_local_cells, d + 1)``.
         fractures: Owned fracture faces.
         fracture_facets_all: Owned and ghost fracture facets (local indices), for submeshes.
         boundary_facets: Owned boundary facets (local indices).
-        boundary_edge: Domain polygon edge of each boundary facet.
+        boundary_edge: Domain polygon edge (2D) or box face (3D) of each boundary facet, an
+            index into ``geometry.boundary_names``.
         num_fracture_faces: Global number of fracture faces.
     """
 
     msh: dolfinx.mesh.Mesh
-    geometry: PlaneGeometry
+    geometry: PlaneGeometry | BoxGeometry
     cracked: _cpp.mesh.Topology
     cracked_cells: npt.NDArray[np.int64]
     fractures: FractureFaces
@@ -241,25 +186,34 @@ def _scatter_rows(comm: MPI.Comm, rows: npt.NDArray | None, wanted: npt.NDArray[
 
 
 def _facet_sides(msh, facets, normals):
-    """``(cell, local facet)`` on the ``+`` and ``-`` side of each facet for given normals."""
+    """Midpoints, and ``(cell, local facet)`` on the ``+`` and ``-`` side of each facet.
+
+    The ``+`` cell is the one ``n⁺`` points out of (its centroid lies on the ``-n⁺`` side).
+    """
     tdim = msh.topology.dim
     f2c = msh.topology.connectivity(tdim - 1, tdim)
     c2f = msh.topology.connectivity(tdim, tdim - 1)
     x = msh.geometry.x[:, :msh.geometry.dim]
     gdofs = msh.geometry.dofmaps[0]
-    fv = dolfinx.mesh.entities_to_geometry(msh, tdim - 1, facets)
-    mid = x[fv].mean(axis=1)
-    plus = np.empty((len(facets), 2), dtype=np.int32)
-    minus = np.empty((len(facets), 2), dtype=np.int32)
-    for i, f in enumerate(facets):
-        cells = f2c.links(f)
-        if len(cells) != 2:
-            raise RuntimeError(f"fracture facet {f} has {len(cells)} local cells (ghosting?)")
-        side = [(x[gdofs[c]].mean(axis=0) - mid[i]) @ normals[i] for c in cells]
-        cp, cm = (cells[0], cells[1]) if side[0] < side[1] else (cells[1], cells[0])
-        plus[i] = cp, np.flatnonzero(c2f.links(cp) == f)[0]
-        minus[i] = cm, np.flatnonzero(c2f.links(cm) == f)[0]
-    return mid, plus, minus
+    if len(facets) == 0:
+        empty = np.empty((0, 2), dtype=np.int32)
+        return np.empty((0, msh.geometry.dim)), empty, empty
+    counts = np.diff(f2c.offsets)[facets]
+    if np.any(counts != 2):
+        bad = facets[np.flatnonzero(counts != 2)[0]]
+        raise RuntimeError(f"fracture facet {bad} does not have 2 local cells (ghosting?)")
+    pair = f2c.array[f2c.offsets[facets][:, None] + np.arange(2)]  # (n, 2)
+    mid = x[dolfinx.mesh.entities_to_geometry(msh, tdim - 1, facets)].mean(axis=1)
+    cent = x[gdofs[pair]].mean(axis=2)  # (n, 2, d)
+    side = np.einsum("nki,ni->nk", cent - mid[:, None, :], normals)
+    swap = side[:, 0] >= side[:, 1]
+    cp = np.where(swap, pair[:, 1], pair[:, 0])
+    cm = np.where(swap, pair[:, 0], pair[:, 1])
+    cf = c2f.array.reshape(-1, tdim + 1)
+    lp = np.argmax(cf[cp] == facets[:, None], axis=1)
+    lm = np.argmax(cf[cm] == facets[:, None], axis=1)
+    return (mid, np.column_stack([cp, lp]).astype(np.int32),
+            np.column_stack([cm, lm]).astype(np.int32))
 
 
 def _cracked_topology(msh, cracked_rows, orig_cells_rows):
@@ -292,7 +246,7 @@ def _cracked_topology(msh, cracked_rows, orig_cells_rows):
 
 def create_fractured_mesh(
     comm: MPI.Comm,
-    geometry: PlaneGeometry,
+    geometry: PlaneGeometry | BoxGeometry,
     arrays: MeshArrays | None,
     owner: npt.NDArray[np.int32] | None = None,
 ) -> FracturedMesh:
@@ -347,12 +301,12 @@ def create_fractured_mesh(
     num_owned = msh.topology.index_map(tdim - 1).size_local
     own = facets < num_owned
     facets, index = facets[own], index[own].astype(np.int64)
-    normals = geometry.face_normals(fid[index], fseg[index])
+    normals, tangents = geometry.face_frames(fid[index], fseg[index])
     mid, plus, minus = _facet_sides(msh, facets, normals)
     measure, diameter = _facet_sizes(msh, facets)
     faces = FractureFaces(
         facets.astype(np.int32), index, fid[index], fseg[index], fs[index], mid, normals,
-        geometry.face_tangents(normals), measure, diameter, plus, minus,
+        tangents, measure, diameter, plus, minus,
     )
 
     bf = arrays.boundary_facets if root else no_facets
@@ -382,7 +336,7 @@ def _facet_sizes(msh, facets) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.f
     return area, np.linalg.norm(edges, axis=2).max(axis=1)
 
 
-def distribute_mesh(comm: MPI.Comm, geometry: PlaneGeometry,
+def distribute_mesh(comm: MPI.Comm, geometry: PlaneGeometry | BoxGeometry,
                     make_arrays: Callable[[], MeshArrays], owner=None) -> FracturedMesh:
     """Make the mesh arrays on rank 0 (gmsh, a mesh file) and distribute them (collective).
 
@@ -434,7 +388,11 @@ def cracked_space(fm: FracturedMesh, degree: int, shape: tuple[int, ...] | None 
 def fracture_measure(fm: FracturedMesh, metadata: dict | None = None) -> ufl.Measure:
     """Interior-facet measure over the fracture faces with ``'+'`` the side ``n⁺`` points out of.
 
-    Use as ``dG(FRACTURE_TAG)``; ``n('+')`` is then ``n⁺`` and ``u('+') - u('-')`` the jump.
+    Use as ``dG(FRACTURE_TAG)`` for the whole network, ``dG(FRACTURE_TAG_OFFSET + j)`` for
+    fracture ``j``; ``n('+')`` is then ``n⁺`` and ``u('+') - u('-')`` the jump.
     """
-    data = [(FRACTURE_TAG, fm.fractures.integration_entities.ravel())]
+    ent = fm.fractures.integration_entities
+    data = [(FRACTURE_TAG, ent.ravel())]
+    data += [(FRACTURE_TAG_OFFSET + j, ent[fm.fractures.fracture == j].ravel())
+             for j in range(len(fm.geometry.fracture_names))]
     return ufl.Measure("dS", domain=fm.msh, subdomain_data=data, metadata=metadata or {})

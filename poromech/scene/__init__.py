@@ -13,7 +13,7 @@ The names below are the scripting API (docs/api.md).
 """
 
 from poromech.errors import ConfigError
-from poromech.scene.geometry import mesh_sizes, plane_geometry
+from poromech.scene.geometry import mesh_sizes, scene_geometry
 from poromech.scene.loading import (
     apply_overrides,
     load_scene,
@@ -32,7 +32,7 @@ __all__ = [
     "load_scene",
     "load_scene_and_raw",
     "mesh_sizes",
-    "plane_geometry",
+    "scene_geometry",
     "scene_from_dict",
     "scene_path",
     "scene_text",

@@ -42,6 +42,25 @@ def check_boundary_name(key: str, name: str, known: set[str]) -> None:
                           f"(allowed: {', '.join(sorted(known))})")
 
 
+def check_components(key: str, value, dim: int) -> None:
+    """A vector given per coordinate has ``dim`` components."""
+    if value is not None and len(value) != dim:
+        names = ", ".join("xyz"[:dim])
+        raise ConfigError(f"scene key '{key}' has {len(value)} components: a {dim}D vector has "
+                          f"{dim} ({names})")
+
+
+def _check_3d(scene: Scene) -> None:
+    """What 3D scenes can do in this version: mechanics with open (pressurized) fractures."""
+    if scene.physics != "mechanics":
+        raise ConfigError(f"scene key 'physics' = {scene.physics!r} is not available in 3D yet "
+                          "(a box domain): 3D runs physics 'mechanics'")
+    if scene.contact.formulation != "none":
+        raise ConfigError(f"scene key 'contact.formulation' = {scene.contact.formulation!r} is "
+                          "not available in 3D yet (a box domain): 3D fractures are open "
+                          "(formulation none, loaded by fracture_pressure)")
+
+
 def _check_mechanics(scene: Scene, geo: PlaneGeometry) -> None:
     for key in ("geometry", "mesh", "material"):
         if getattr(scene, key) is None:
@@ -61,17 +80,21 @@ def _check_mechanics(scene: Scene, geo: PlaneGeometry) -> None:
         check_field(getattr(scene.material, name), f"material.{name}",
                      field_meta(Material, name), geo, times)
     known = set(geo.boundary_names)
-    fixed = [False, False]
+    dim = geo.dim
+    fixed = [False] * dim
     for i, bc in enumerate(scene.boundary_conditions):
         path = f"boundary_conditions.{i}"
         check_boundary_name(f"{path}.boundary", bc.boundary, known)
         if (bc.displacement is None) == (bc.traction is None):
             raise ConfigError(f"scene key '{path}' needs exactly one of displacement, traction")
+        for kind in ("displacement", "traction"):
+            check_components(f"{path}.{kind}", getattr(bc, kind), dim)
         if bc.displacement is not None:
             for k, comp in enumerate(bc.displacement):
                 fixed[k] |= comp is not None
+    check_components("material.body_force", scene.material.body_force, dim)
     if not all(fixed):
-        comp = "xy"[fixed.index(False)]
+        comp = "xyz"[fixed.index(False)]
         raise ConfigError(
             f"scene key 'boundary_conditions': no displacement {comp} is imposed anywhere "
             "(rigid body motion); add a displacement condition"
@@ -86,7 +109,7 @@ def _check_mechanics_data(scene: Scene, geo: PlaneGeometry, times) -> None:
     pressure and slip bound along the fractures.
     """
     grid = grid_points(geo)
-    for k, e in enumerate(scene.material.body_force):
+    for k, e in enumerate(scene.material.body_force or ()):
         check_expression(e, grid, f"material.body_force.{k}", None, times)
     for i, bc in enumerate(scene.boundary_conditions):
         points = edge_points(geo, bc.boundary)
@@ -261,12 +284,31 @@ def _check_probes(scene: Scene, geo: PlaneGeometry) -> None:
         if probe.name in names:
             raise ConfigError(f"scene key '{path}.name' = {probe.name!r} repeats")
         names.add(probe.name)
+        check_components(f"{path}.start", probe.start, geo.dim)
+        check_components(f"{path}.end", probe.end, geo.dim)
         if np.allclose(probe.start, probe.end, rtol=0.0, atol=0.0):
             raise ConfigError(f"scene key '{path}.end' = {list(probe.end)} equals start: "
                               "a probe line needs two distinct points")
-        if not segment_meets_polygon(np.array(probe.start), np.array(probe.end), geo.boundary):
+        a, b = np.array(probe.start), np.array(probe.end)
+        meets = (segment_meets_box(a, b, geo.lower, geo.upper) if geo.dim == 3
+                 else segment_meets_polygon(a, b, geo.boundary))
+        if not meets:
             log.warning("probe '%s' (scene key '%s') lies entirely outside the domain: "
                         "probe_%s.csv will have no values", probe.name, path, probe.name)
+
+
+def segment_meets_box(a: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> bool:
+    """Whether the segment ``[a, b]`` meets the closed box ``[lo, hi]`` (slab clipping)."""
+    t0, t1 = 0.0, 1.0
+    d = b - a
+    for k in range(len(a)):
+        if d[k] == 0.0:
+            if not lo[k] <= a[k] <= hi[k]:
+                return False
+            continue
+        ta, tb = sorted(((lo[k] - a[k]) / d[k], (hi[k] - a[k]) / d[k]))
+        t0, t1 = max(t0, ta), min(t1, tb)
+    return t0 <= t1
 
 
 def _check_time(scene: Scene) -> None:
@@ -301,6 +343,8 @@ def check_scene(scene: Scene, geo: PlaneGeometry) -> None:
         ConfigError: The first defect, in one line naming the key.
     """
     _check_petsc_keys(scene)
+    if geo.dim == 3:
+        _check_3d(scene)
     _check_time(scene)
     _check_gravity(scene, geo)
     _check_probes(scene, geo)

@@ -143,7 +143,7 @@ def _mechanics_checks(scene: Scene, fm: FracturedMesh, p: _Points, times) -> Ite
             "a cell centre")
     nodes = p.cell_nodes if scene.degree == 1 else np.concatenate([p.cell_nodes,
                                                                    p.cell_edge_midpoints])
-    for k, e in enumerate(mat.body_force):
+    for k, e in enumerate(mat.body_force or ()):
         yield lambda k=k, e=e: check_expression(e, nodes, f"material.body_force.{k}", None,
                                                 times, "a mesh node")
     for i, bc in enumerate(scene.boundary_conditions):

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from poromech.errors import ConfigError
+from poromech.geometry.box import BoxGeometry, Fracture3D
 from poromech.geometry.plane import PlaneGeometry
 from poromech.mesh.generate import MeshSizes
 from poromech.scene.builder import Builder, deep_copy, field_meta, format_value
@@ -28,7 +29,8 @@ __all__ = [
     "geometry_source",
     "mesh_file_refinement",
     "mesh_sizes",
-    "plane_geometry",
+    "scene_dimension",
+    "scene_geometry",
     "read_geometry_files",
 ]
 
@@ -36,9 +38,19 @@ __all__ = [
 RECTANGLE_EDGES = ("bottom", "right", "top", "left")
 
 
-def plane_geometry(scene: Scene) -> PlaneGeometry:
-    """The plane geometry of a scene, with boundary edge names resolved."""
+def scene_geometry(scene: Scene) -> PlaneGeometry | BoxGeometry:
+    """The geometry of a scene: plane (2D, edge names resolved) or a box (3D, ``domain.box``)."""
     dom = scene.geometry.domain
+    fnames = tuple(f.name or str(i + 1) for i, f in enumerate(scene.geometry.fractures))
+    if dom.box is not None:
+        fractures = []
+        for f, name in zip(scene.geometry.fractures, fnames, strict=True):
+            if f.disc is not None:
+                fractures.append(Fracture3D.disc(name, f.disc.center, f.disc.normal,
+                                                 f.disc.radius))
+            else:
+                fractures.append(Fracture3D.polygon(name, np.array(f.polygon, dtype=float)))
+        return BoxGeometry(tuple(float(v) for v in dom.box), tuple(fractures))
     if dom.rectangle is not None:
         x0, y0, x1, y1 = dom.rectangle
         boundary = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], dtype=np.float64)
@@ -51,16 +63,32 @@ def plane_geometry(scene: Scene) -> PlaneGeometry:
                 names[e] = name
         names = tuple(names)
     fractures = tuple(np.array(f.points, dtype=np.float64) for f in scene.geometry.fractures)
-    fnames = tuple(f.name or str(i + 1) for i, f in enumerate(scene.geometry.fractures))
     return PlaneGeometry(boundary, names, fractures, fnames)
 
 
+def scene_dimension(scene: Scene) -> int:
+    """2, or 3 for a box domain."""
+    return 3 if scene.geometry.domain is not None and scene.geometry.domain.box is not None else 2
+
+
 def check_domain(scene: Scene) -> None:
-    """The domain is one rectangle or polygon, its boundary names refer to edges, names unique."""
+    """One rectangle, polygon or box; edge names exist; fractures of the domain's kind; names.
+
+    Fractures are polylines in 2D, polygons or discs in 3D; fracture names are unique.
+    """
     dom = scene.geometry.domain
-    if (dom.rectangle is None) == (dom.polygon is None):
-        raise ConfigError("scene key 'geometry.domain' needs exactly one of rectangle, polygon")
-    if dom.rectangle is not None:
+    given = [k for k in ("rectangle", "polygon", "box") if getattr(dom, k) is not None]
+    if len(given) != 1:
+        raise ConfigError("scene key 'geometry.domain' needs exactly one of rectangle, polygon, "
+                          f"box (given: {', '.join(given) or 'none'})")
+    if dom.box is not None:
+        lo, hi = np.array(dom.box[:3]), np.array(dom.box[3:])
+        if not np.all(hi > lo):
+            raise ConfigError(f"scene key 'geometry.domain.box' = {list(dom.box)} needs "
+                              "x1 > x0, y1 > y0, z1 > z0")
+        if dom.boundary_names:
+            raise ConfigError("scene key 'geometry.domain.boundary_names' is for polygons only")
+    elif dom.rectangle is not None:
         x0, y0, x1, y1 = dom.rectangle
         if not (x1 > x0 and y1 > y0):
             raise ConfigError(
@@ -78,9 +106,22 @@ def check_domain(scene: Scene) -> None:
                         f"scene key 'geometry.domain.boundary_names.{name}' = {list(edges)}: "
                         f"edge {e} does not exist (0..{n - 1})"
                     )
+    _check_fracture_kinds(scene, dom.box is not None)
     names = [f.name for f in scene.geometry.fractures if f.name]
     if len(set(names)) != len(names):
         raise ConfigError(f"scene key 'geometry.fractures': fracture names repeat: {names}")
+
+
+def _check_fracture_kinds(scene: Scene, box: bool) -> None:
+    """Polylines (``points``) in a 2D domain; a ``polygon`` or a ``disc`` in a box."""
+    for i, f in enumerate(scene.geometry.fractures):
+        key = f"geometry.fractures.{i}"
+        given = [k for k in ("points", "polygon", "disc") if getattr(f, k) is not None]
+        allowed = ("polygon", "disc") if box else ("points",)
+        if len(given) != 1 or given[0] not in allowed:
+            where = "a box (3D)" if box else "a 2D domain"
+            raise ConfigError(f"scene key '{key}' needs exactly one of {', '.join(allowed)} in "
+                              f"{where} (given: {', '.join(given) or 'none'})")
 
 
 #: Suffixes of the shipped geometry files that scenes may name without a path (``meshes/``).
@@ -188,7 +229,7 @@ def _fractures_from_csv(geometry):
         network = read_fracture_csv(path)
     except FractureFileError as err:
         raise ConfigError(f"scene key '{key}' = {geometry.fracture_file!r}: {err}") from None
-    fractures = tuple(FractureSpec(tuple(map(tuple, p.tolist())), name) for name, p in network)
+    fractures = tuple(FractureSpec(points=tuple(map(tuple, p.tolist())), name=name) for name, p in network)
     return dataclasses.replace(geometry, fracture_file=str(path), fractures=fractures)
 
 
@@ -209,7 +250,7 @@ def _geometry_from_mesh(geometry):
         edges.setdefault(name, []).append(i)
     domain = Domain(polygon=tuple(map(tuple, geo.boundary.tolist())),
                     boundary_names={k: tuple(v) for k, v in edges.items()})
-    fractures = tuple(FractureSpec(tuple(map(tuple, p.tolist())), name)
+    fractures = tuple(FractureSpec(points=tuple(map(tuple, p.tolist())), name=name)
                       for p, name in zip(geo.fractures, geo.fracture_names, strict=True))
     geometry = dataclasses.replace(geometry, domain=domain, fractures=fractures,
                                    mesh=dataclasses.replace(spec, file=str(path)))

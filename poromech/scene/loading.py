@@ -16,6 +16,7 @@ from typing import Any
 import yaml
 
 from poromech.errors import ConfigError
+from poromech.geometry.box import BoxGeometry, check_box_geometry
 from poromech.geometry.plane import GeometryError, check_geometry
 from poromech.scene.builder import Builder, deep_copy, format_value
 from poromech.scene.checks import check_name, check_scene
@@ -24,8 +25,9 @@ from poromech.scene.geometry import (
     check_domain,
     geometry_source,
     mesh_file_refinement,
-    plane_geometry,
+    mesh_sizes,
     read_geometry_files,
+    scene_geometry,
 )
 from poromech.scene.schema import Scene
 from poromech.scene.usage import check_keys_used
@@ -287,9 +289,13 @@ def scene_from_dict(raw: Mapping) -> Scene:
         raise ConfigError("scene key 'geometry' is required")
     scene = read_geometry_files(scene, refinement)
     check_domain(scene)
-    geo = plane_geometry(scene)
     try:
-        check_geometry(geo)
+        geo = scene_geometry(scene)
+        if isinstance(geo, BoxGeometry):
+            sizes = mesh_sizes(scene) if scene.mesh is not None else None
+            check_box_geometry(geo, sizes.fracture_size if sizes else None)
+        else:
+            check_geometry(geo)
     except GeometryError as err:
         raise ConfigError(f"{geometry_source(scene)}: {err}") from None
     check_scene(scene, geo)

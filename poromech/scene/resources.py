@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
+from poromech.geometry.box import BoxGeometry
 from poromech.geometry.plane import PlaneGeometry
 
 __all__ = [
@@ -51,6 +52,18 @@ log = logging.getLogger("poromech")
 #: Triangles per unit of ``∫ h⁻²`` (``1/(√3/4) ≈ 2.31`` for equilateral triangles; gmsh's
 #: frontal-Delaunay meshes of the shipped scenes give 2.4-2.5).
 CELLS_PER_AREA = 2.45
+#: Tetrahedra per unit of ``∫ h⁻³`` (gmsh's Delaunay meshes of fractured boxes give 6-8; a
+#: regular tetrahedron of edge h has volume h³/(6√2), 8.5 per h³).
+CELLS_PER_VOLUME = 7.0
+#: Displacement unknowns per cell, (dimension, degree): P2 triangles 2 × (vertices + edges) ≈ 4
+#: per cell; P2 tetrahedra 3 × (vertices + edges) ≈ 4.5 (vertices ≈ cells/5.5, edges ≈
+#: vertices + cells); P1 tetrahedra 3 × vertices ≈ 0.55.
+UNKNOWNS_PER_CELL = {(2, 1): 1.0, (2, 2): 4.0, (3, 1): 0.55, (3, 2): 4.5}
+#: Bytes per ``n^{4/3}`` of a direct solve in 3D (nested-dissection fill grows as ``n^{4/3}``;
+#: MUMPS on a P2 penny crack: 2.2 GB at 83k and 7.9 GB at 216k unknowns).
+DIRECT_BYTES_3D = 560.0
+#: Bytes per unknown of an iterative (CG + GAMG) elastic solve in 3D (matrix, hierarchy, vectors).
+ITERATIVE_BYTES_3D = 2500.0
 #: Memory of one rank before any mesh (interpreter, PETSc, MPI, compiled forms), bytes.
 BASE_BYTES = 250e6
 #: Bytes per unknown and per ``log₂(unknowns)`` of a direct solve (matrix, factors, vectors).
@@ -118,9 +131,50 @@ def _crossings(geo: PlaneGeometry) -> int:
     return count
 
 
+def _slab_excess(size: float, near: float, transition: float) -> float:
+    """``∫ (h(d)⁻³ - size⁻³)`` over ``0 <= d <= transition`` for ``h`` linear from ``near``."""
+    if near >= size:
+        return 0.0
+    k = (size - near) / transition
+    return (near**-2 - size**-2) / (2 * k) - transition / size**3
+
+
+def _tube_excess(size: float, near: float, transition: float) -> float:
+    """``∫ 2πr (h(r)⁻³ - size⁻³) dr`` over the disc of radius ``transition`` around a curve."""
+    if near >= size:
+        return 0.0
+    k = (size - near) / transition
+    return 2 * math.pi / k**2 * (0.5 / near - 1 / size + near / (2 * size**2)) \
+        - math.pi * transition**2 / size**3
+
+
+def _tip_length(fracture) -> float:
+    """Length of a fracture's edge (disc rim or polygon perimeter), m."""
+    if fracture.is_disc:
+        return 2 * math.pi * fracture.radius
+    p = fracture.points
+    return float(np.linalg.norm(np.roll(p, -1, axis=0) - p, axis=1).sum())
+
+
+def estimate_cells_3d(geo: BoxGeometry, size: float, fracture_size: float, tip_size: float,
+                      transition: float, refinement: int) -> float:
+    """Expected number of tetrahedra of the gmsh mesh of a fractured box (module docstring)."""
+    volume = float(np.prod(geo.upper - geo.lower))
+    density = volume / size**3
+    for f in geo.fractures:
+        density += 2 * f.area * _slab_excess(size, fracture_size, transition)
+        tip = _tube_excess(size, tip_size, transition) - _tube_excess(size, fracture_size,
+                                                                      transition)
+        density += _tip_length(f) * max(tip, 0.0)
+    density = min(density, volume / min(size, fracture_size, tip_size) ** 3)
+    return CELLS_PER_VOLUME * density * 8.0**refinement
+
+
 def estimate_cells(geo: PlaneGeometry, size: float, fracture_size: float, tip_size: float,
                    transition: float, refinement: int) -> float:
     """Expected number of triangles of the gmsh mesh of ``geo`` (see the module docstring)."""
+    if isinstance(geo, BoxGeometry):
+        return estimate_cells_3d(geo, size, fracture_size, tip_size, transition, refinement)
     area = _polygon_area(geo.boundary)
     density = area / size**2
     length = float(geo.fracture_lengths().sum()) if geo.fractures else 0.0
@@ -133,6 +187,20 @@ def estimate_cells(geo: PlaneGeometry, size: float, fracture_size: float, tip_si
         density += ends * max(tip, 0.0)
     density = min(density, area / min(size, fracture_size, tip_size) ** 2)
     return CELLS_PER_AREA * density * 4.0**refinement
+
+
+#: Above this many unknowns ``solver.linear_solver: auto`` solves a 3D elastic problem with
+#: CG + GAMG; 2D problems always with MUMPS (fast there, and the condensed mixed solve needs it).
+ITERATIVE_FROM_UNKNOWNS_3D = 20_000
+
+
+def mechanics_solver(scene, unknowns: float) -> str:
+    """``direct`` or ``iterative``: ``solver.linear_solver``, or chosen by dimension and size."""
+    choice = scene.solver.linear_solver
+    if choice != "auto":
+        return choice
+    dim = 3 if scene.geometry.domain.box is not None else 2
+    return "iterative" if dim == 3 and unknowns > ITERATIVE_FROM_UNKNOWNS_3D else "direct"
 
 
 def _direct_bytes(n: float) -> float:
@@ -148,9 +216,14 @@ def estimate_run(scene, geo: PlaneGeometry, ranks: int = 1) -> RunEstimate:
     memory = ranks * BASE_BYTES + MESH_BYTES_PER_CELL * cells
     unknowns = 0.0
     if scene.physics in ("mechanics", "poromechanics"):
-        mech = (4.0 if scene.degree == 2 else 1.0) * cells
+        mech = UNKNOWNS_PER_CELL[(geo.dim, scene.degree)] * cells
         unknowns += mech
-        memory += _direct_bytes(mech)
+        if geo.dim == 2:
+            memory += _direct_bytes(mech)
+        elif mechanics_solver(scene, mech) == "direct":
+            memory += DIRECT_BYTES_3D * mech ** (4 / 3)
+        else:
+            memory += ITERATIVE_BYTES_3D * mech
     if scene.physics in ("flow", "poromechanics") and scene.flow is not None:
         flow = 2.5 * cells
         unknowns += flow

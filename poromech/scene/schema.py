@@ -19,6 +19,7 @@ __all__ = [
     "BoundaryCondition",
     "Contact",
     "Coupling",
+    "Disc",
     "Domain",
     "FlowBoundaryCondition",
     "Flow",
@@ -48,11 +49,16 @@ def doc(text: str, unit: str = "", **checks) -> dict:
 
 @dataclass(frozen=True)
 class Domain:
-    """The matrix domain: a rectangle or a polygon."""
+    """The matrix domain: a rectangle or a polygon (2D), or a box (3D)."""
 
     rectangle: tuple[float, float, float, float] | None = field(
         default=None,
         metadata=doc("[x0, y0, x1, y1]; edges are named bottom, right, top, left", "m"),
+    )
+    box: tuple[float, float, float, float, float, float] | None = field(
+        default=None,
+        metadata=doc("[x0, y0, z0, x1, y1, z1] (3D); faces are named left, right (x = x0, x1), "
+                     "front, back (y = y0, y1), bottom, top (z = z0, z1)", "m"),
     )
     polygon: tuple[tuple[float, float], ...] | None = field(
         default=None, metadata=doc("vertices [[x, y], ...]; edge i joins vertex i and i+1", "m")
@@ -64,12 +70,30 @@ class Domain:
 
 
 @dataclass(frozen=True)
-class FractureSpec:
-    """One fracture: a polyline; a corner does not split it into two fractures."""
+class Disc:
+    """A circular planar fracture (3D)."""
 
-    points: tuple[tuple[float, float], ...] = field(
-        metadata=doc("polyline points [[x, y], ...]; their order fixes n⁺ (left normal)", "m")
+    center: tuple[float, float, float] = field(metadata=doc("centre [x, y, z]", "m"))
+    normal: tuple[float, float, float] = field(
+        metadata=doc("normal n⁺ [n_x, n_y, n_z] (any length but 0): the + side is the side it "
+                     "points out of", "m"))
+    radius: float = field(metadata=doc("radius", "m", gt=0))
+
+
+@dataclass(frozen=True)
+class FractureSpec:
+    """One fracture: a polyline (2D; a corner does not split it), a planar polygon or a disc."""
+
+    points: tuple[tuple[float, float], ...] | None = field(
+        default=None,
+        metadata=doc("2D: polyline points [[x, y], ...]; their order fixes n⁺ (left normal)", "m")
     )
+    polygon: tuple[tuple[float, float, float], ...] | None = field(
+        default=None,
+        metadata=doc("3D: vertices [[x, y, z], ...] of a planar polygon; n⁺ by the right-hand "
+                     "rule (counter-clockwise seen from the side n⁺ points to)", "m")
+    )
+    disc: Disc | None = field(default=None, metadata=doc("3D: a disc (below)"))
     name: str = field(default="", metadata=doc("fracture name (default: its 1-based number)"))
 
 
@@ -153,12 +177,12 @@ class MeshSpec:
 
 @dataclass(frozen=True)
 class Material:
-    """Linear elastic matrix (plane strain)."""
+    """Linear elastic matrix (plane strain in 2D)."""
 
     young: Expr = field(metadata=doc("Young's modulus E (may vary in space)", "Pa", gt=0))
     poisson: Expr = field(metadata=doc("Poisson's ratio ν", "", gt=-1, lt=0.5))
-    body_force: tuple[Expr, Expr] = field(
-        default=(Expression(0.0), Expression(0.0)), metadata=doc("body force f", "N/m³")
+    body_force: tuple[Expr, ...] | None = field(
+        default=None, metadata=doc("body force f, one component per coordinate", "N/m³")
     )
     biot: float = field(
         default=1.0,
@@ -242,14 +266,16 @@ class Contact:
 
 @dataclass(frozen=True)
 class BoundaryCondition:
-    """A mechanical condition on named boundary edges (default: traction free)."""
+    """A mechanical condition on named boundary edges or faces (default: traction free)."""
 
-    boundary: str = field(metadata=doc("boundary name (rectangle: bottom, right, top, left)"))
-    displacement: tuple[Expr | None, Expr | None] | None = field(
-        default=None, metadata=doc("imposed [u_x, u_y]; null leaves a component free", "m")
+    boundary: str = field(metadata=doc("boundary name (rectangle: bottom, right, top, left; "
+                                       "box: left, right, front, back, bottom, top)"))
+    displacement: tuple[Expr | None, ...] | None = field(
+        default=None, metadata=doc("imposed [u_x, u_y] (3D: [u_x, u_y, u_z]); null leaves a "
+                                   "component free", "m")
     )
-    traction: tuple[Expr, Expr] | None = field(
-        default=None, metadata=doc("imposed traction [t_x, t_y]", "Pa")
+    traction: tuple[Expr, ...] | None = field(
+        default=None, metadata=doc("imposed traction [t_x, t_y] (3D: [t_x, t_y, t_z])", "Pa")
     )
 
 
@@ -283,6 +309,13 @@ class TimeSpec:
 class Solver:
     """Semi-smooth Newton (mechanics) and its linear solver."""
 
+    linear_solver: Literal["auto", "direct", "iterative"] = field(
+        default="auto",
+        metadata=doc("linear solver of the elastic problem: direct (MUMPS), iterative (CG + "
+                     "GAMG with the rigid-body modes of the cracked space as near-nullspace), "
+                     "or auto: direct in 2D, iterative in 3D above 20,000 estimated unknowns; "
+                     "solver.petsc options change either"),
+    )
     line_search: Literal["contact", "basic", "bt", "l2", "cp"] = field(
         default="contact",
         metadata=doc("contact (poromech's active-set aware search) or a PETSc line search"),
@@ -418,8 +451,8 @@ class Probe:
     """
 
     name: str = field(metadata=doc("probe name (file probe_<name>.csv)"))
-    start: tuple[float, float] = field(metadata=doc("start point", "m"))
-    end: tuple[float, float] = field(metadata=doc("end point", "m"))
+    start: tuple[float, ...] = field(metadata=doc("start point [x, y] (3D: [x, y, z])", "m"))
+    end: tuple[float, ...] = field(metadata=doc("end point", "m"))
     samples: int = field(default=201, metadata=doc("number of sample points", "", min=2,
                                                     max=100_000))
     interpolation: Literal["linear", "constant"] = field(

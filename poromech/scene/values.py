@@ -12,6 +12,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from poromech.errors import ConfigError
+from poromech.geometry.box import BoxGeometry
 from poromech.geometry.plane import PlaneGeometry
 from poromech.scene.builder import RANGE_RULES, format_value
 from poromech.scene.expressions import Expression
@@ -54,8 +55,17 @@ def inside(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
     return inside
 
 
-def grid_points(geo: PlaneGeometry, n: int = FIELD_GRID) -> np.ndarray:
-    """Cell-centred grid points of the bounding box that lie inside the domain, ``(m, 2)``."""
+#: Grid points per axis in a box (3D), and per side of a box face or fracture.
+BOX_GRID = 41
+SURFACE_GRID = 101
+
+
+def grid_points(geo: PlaneGeometry | BoxGeometry, n: int = FIELD_GRID) -> np.ndarray:
+    """Cell-centred grid points of the bounding box that lie inside the domain, ``(m, d)``."""
+    if isinstance(geo, BoxGeometry):
+        s = (np.arange(BOX_GRID) + 0.5) / BOX_GRID
+        axes = [lo + s * (hi - lo) for lo, hi in zip(geo.lower, geo.upper, strict=True)]
+        return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
     lo, hi = geo.boundary.min(axis=0), geo.boundary.max(axis=0)
     s = (np.arange(n) + 0.5) / n
     gx, gy = np.meshgrid(lo[0] + s * (hi[0] - lo[0]), lo[1] + s * (hi[1] - lo[1]))
@@ -63,23 +73,50 @@ def grid_points(geo: PlaneGeometry, n: int = FIELD_GRID) -> np.ndarray:
     return points[inside(points, geo.boundary)]
 
 
-def edge_points(geo: PlaneGeometry, name: str, n: int = LINE_SAMPLES) -> np.ndarray:
-    """Points along the domain edges called ``name``, their end vertices included."""
+def edge_points(geo: PlaneGeometry | BoxGeometry, name: str, n: int = LINE_SAMPLES
+                ) -> np.ndarray:
+    """Points along the domain edges (box faces) called ``name``, their ends (edges) included."""
+    if isinstance(geo, BoxGeometry):
+        axis, value = geo.face_plane(geo.boundary_names.index(name))
+        others = [a for a in range(3) if a != axis]
+        s = np.linspace(0.0, 1.0, SURFACE_GRID)
+        u, v = np.meshgrid(*[geo.lower[a] + s * (geo.upper[a] - geo.lower[a]) for a in others])
+        pts = np.empty((u.size, 3))
+        pts[:, axis], pts[:, others[0]], pts[:, others[1]] = value, u.ravel(), v.ravel()
+        return pts
     poly = geo.boundary
     s = np.linspace(0.0, 1.0, n)[:, None]
     return np.concatenate([poly[e] + s * (poly[(e + 1) % len(poly)] - poly[e])
                            for e, edge in enumerate(geo.boundary_names) if edge == name])
 
 
-def fracture_points(geo: PlaneGeometry, which=None, n: int = LINE_SAMPLES) -> np.ndarray:
-    """Points inside the segments of fractures ``which`` (default all): face midpoints lie there.
+def fracture_points(geo: PlaneGeometry | BoxGeometry, which=None, n: int = LINE_SAMPLES
+                    ) -> np.ndarray:
+    """Points of fractures ``which`` (default all) where face midpoints can lie.
 
-    Segment end points are excluded (no face has its midpoint there).
+    2D: segment end points are excluded (no face has its midpoint there). 3D: a grid of each
+    fracture's plane inside the fracture, and points on its edge.
     """
+    if isinstance(geo, BoxGeometry):
+        parts = [_surface_points(f) for k, f in enumerate(geo.fractures)
+                 if which is None or k in which]
+        return np.concatenate(parts) if parts else np.empty((0, 3))
     s = ((np.arange(n) + 0.5) / n)[:, None]
     parts = [p[i] + s * (p[i + 1] - p[i]) for k, p in enumerate(geo.fractures)
              if which is None or k in which for i in range(len(p) - 1)]
     return np.concatenate(parts) if parts else np.empty((0, 2))
+
+
+def _surface_points(fracture) -> np.ndarray:
+    """Grid points of a planar fracture (inside it) and points on its edge, ``(m, 3)``."""
+    t1, t2 = fracture.tangents
+    uv = fracture.to_plane(fracture.outline())
+    lo, hi = uv.min(axis=0), uv.max(axis=0)
+    s = (np.arange(SURFACE_GRID) + 0.5) / SURFACE_GRID
+    u, v = np.meshgrid(lo[0] + s * (hi[0] - lo[0]), lo[1] + s * (hi[1] - lo[1]))
+    pts = fracture.origin + u.reshape(-1, 1) * t1 + v.reshape(-1, 1) * t2
+    pts = pts[fracture.contains(pts, 0.0)]
+    return np.concatenate([pts, fracture.boundary_points(4 * SURFACE_GRID)])
 
 
 def check_times(scene: Scene) -> list[float]:

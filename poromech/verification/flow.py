@@ -27,7 +27,7 @@ from poromech.geometry.plane import PlaneGeometry
 from poromech.io.probes import LineSampler
 from poromech.mesh.fractured import FracturedMesh, distribute_mesh
 from poromech.mesh.generate import MeshSizes, generate_mesh
-from poromech.scene.geometry import mesh_sizes, plane_geometry
+from poromech.scene.geometry import mesh_sizes, scene_geometry
 from poromech.scene.loading import load_scene
 from poromech.scene.schema import Scene
 
@@ -248,7 +248,7 @@ def solve_scene(scene: Scene, comm: MPI.Comm, owner=None) -> DarcyProblem:
 
     ``owner(centroids) -> ranks`` optionally imposes the partition.
     """
-    geo, sizes = plane_geometry(scene), mesh_sizes(scene)
+    geo, sizes = scene_geometry(scene), mesh_sizes(scene)
     fm = distribute_mesh(comm, geo, lambda: generate_mesh(geo, sizes), owner)
     problem = problem_from_scene(scene, fm)
     problem.solve(0.0)
