@@ -18,6 +18,7 @@ import numpy as np
 import numpy.typing as npt
 
 __all__ = [
+    "penny_opening",
     "inclined_crack_displacement",
     "inclined_crack_frame",
     "inclined_crack_slip",
@@ -65,6 +66,16 @@ def sneddon_opening(x, a: float, p: float, E: float, nu: float):
     """Opening ``w = -[[u]]_n`` (m) of Sneddon's pressurized crack at abscissa ``x``."""
     x = np.asarray(x, dtype=np.float64)
     return 4 * (1 - nu**2) * p / E * np.sqrt(np.clip(a**2 - x**2, 0.0, None))
+
+
+def penny_opening(r, a: float, p: float, E: float, nu: float):
+    """Opening ``w = -[[u]]_n`` (m) of Sneddon's penny crack of radius ``a`` at radius ``r``.
+
+    ``w = 8 (1 - ν²) p / (π E) √(a² - r²)`` in an infinite solid under internal pressure ``p``
+    (Sneddon 1946).
+    """
+    r = np.asarray(r, dtype=np.float64)
+    return 8 * (1 - nu**2) * p / (np.pi * E) * np.sqrt(np.clip(a**2 - r**2, 0.0, None))
 
 
 def sneddon_displacement(x, y, a: float, p: float, E: float, nu: float):

@@ -229,7 +229,8 @@ def _fractures_from_csv(geometry):
         network = read_fracture_csv(path)
     except FractureFileError as err:
         raise ConfigError(f"scene key '{key}' = {geometry.fracture_file!r}: {err}") from None
-    fractures = tuple(FractureSpec(points=tuple(map(tuple, p.tolist())), name=name) for name, p in network)
+    fractures = tuple(FractureSpec(points=tuple(map(tuple, p.tolist())), name=name)
+                      for name, p in network)
     return dataclasses.replace(geometry, fracture_file=str(path), fractures=fractures)
 
 

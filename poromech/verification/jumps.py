@@ -18,31 +18,42 @@ from mpi4py import MPI
 
 from poromech.mesh.fractured import FracturedMesh
 
-__all__ = ["FaceQuadrature", "face_quadrature", "jump_errors", "jump_values"]
+__all__ = ["FaceQuadrature", "exact_jump", "face_quadrature", "jump_errors", "jump_values",
+           "penny_jump", "sneddon_jump"]
 
 
 class FaceQuadrature:
-    """Gauss points on the owned fracture faces.
+    """Gauss points on the owned fracture faces (segments in 2D, triangles in 3D).
 
     Attributes:
-        points: ``(N, 2)`` coordinates.
-        weights: ``(N,)`` weights (m).
+        points: ``(N, d)`` coordinates.
+        weights: ``(N,)`` weights (m in 2D, m² in 3D).
         plus, minus: ``(N,)`` cells of the ``+`` and ``-`` sides.
-        normal: ``(N, 2)`` ``n⁺`` at each point.
+        normal: ``(N, d)`` ``n⁺`` at each point.
         face: ``(N,)`` position of the point's face in ``fm.fractures``.
     """
 
     def __init__(self, fm: FracturedMesh, npoints: int = 6):
-        faces = fm.fractures
-        xg = fm.msh.geometry.x[:, :2]
+        import basix
         import dolfinx
 
-        ends = xg[dolfinx.mesh.entities_to_geometry(fm.msh, 1, faces.facets)]
-        g, w = np.polynomial.legendre.leggauss(npoints)
-        s = 0.5 * (g + 1)
-        a, b = ends[:, 0], ends[:, 1]
-        self.points = (a[:, None, :] + s[None, :, None] * (b - a)[:, None, :]).reshape(-1, 2)
-        self.weights = (0.5 * w[None, :] * faces.measure[:, None]).ravel()
+        faces = fm.fractures
+        tdim = fm.msh.topology.dim
+        xg = fm.msh.geometry.x[:, :tdim]
+        fm.msh.topology.create_connectivity(tdim - 1, 0)
+        corners = xg[dolfinx.mesh.entities_to_geometry(fm.msh, tdim - 1, faces.facets)]
+        if tdim == 2:
+            g, w = np.polynomial.legendre.leggauss(npoints)
+            ref, w = (0.5 * (g + 1))[:, None], 0.5 * w
+        else:  # Gauss-Jacobi points of degree 2 npoints - 1 on the reference triangle
+            ref, w = basix.make_quadrature(basix.CellType.triangle, 2 * npoints - 1)
+            w = 2.0 * w  # the reference triangle has area 1/2
+        a = corners[:, 0]
+        edges = corners[:, 1:] - a[:, None, :]  # (faces, d - 1, d)
+        pts = a[:, None, :] + np.einsum("qk,fkd->fqd", ref, edges)
+        self.points = pts.reshape(-1, tdim)
+        npoints = len(w)
+        self.weights = (w[None, :] * faces.measure[:, None]).ravel()
         self.plus = np.repeat(faces.plus[:, 0], npoints)
         self.minus = np.repeat(faces.minus[:, 0], npoints)
         self.normal = np.repeat(faces.normal, npoints, axis=0)
@@ -55,10 +66,11 @@ def face_quadrature(fm: FracturedMesh, npoints: int = 6) -> FaceQuadrature:
 
 
 def jump_values(u: fem.Function, q: FaceQuadrature) -> npt.NDArray[np.float64]:
-    """``[[u]] = u⁺ - u⁻`` at the quadrature points, ``(N, 2)``."""
-    pts = np.column_stack([q.points, np.zeros(len(q.points))])
+    """``[[u]] = u⁺ - u⁻`` at the quadrature points, ``(N, d)``."""
+    d = q.points.shape[1]
+    pts = np.column_stack([q.points, np.zeros((len(q.points), 3 - d))])
     if len(pts) == 0:
-        return np.empty((0, 2))
+        return np.empty((0, d))
     return u.eval(pts, q.plus.astype(np.int32)) - u.eval(pts, q.minus.astype(np.int32))
 
 
@@ -73,7 +85,7 @@ def jump_errors(
     Args:
         u: Displacement.
         fm: Fractured mesh.
-        exact: ``exact(points, normals) -> (N, 2)`` exact jump vectors.
+        exact: ``exact(points, normals) -> (N, d)`` exact jump vectors.
         npoints: Gauss points per face.
 
     Returns:
@@ -83,11 +95,11 @@ def jump_errors(
     comm = fm.comm
     q = face_quadrature(fm, npoints)
     uh = jump_values(u, q)
-    ue = exact(q.points, q.normal) if len(q.points) else np.empty((0, 2))
+    d = q.points.shape[1]
+    ue = exact(q.points, q.normal) if len(q.points) else np.empty((0, d))
     e = uh - ue
-    t = np.column_stack([q.normal[:, 1], -q.normal[:, 0]])
     en = np.einsum("ij,ij->i", e, q.normal)
-    et = np.einsum("ij,ij->i", e, t)
+    et = np.linalg.norm(e - en[:, None] * q.normal, axis=1)  # tangential part, any d
 
     def integral(v):
         return comm.allreduce(float(np.sum(q.weights * v)), op=MPI.SUM)
@@ -118,6 +130,20 @@ def sneddon_jump(a: float, p: float, E: float, nu: float):
     return exact
 
 
+def penny_jump(a: float, p: float, E: float, nu: float, center=(0.0, 0.0, 0.0)):
+    """Exact jump of Sneddon's penny crack of radius ``a``: ``[[u]] = -w(r) n⁺``."""
+    from poromech.analytic import penny_opening
+
+    c = np.asarray(center, dtype=np.float64)
+
+    def exact(points, normals):
+        rel = points - c
+        r = np.linalg.norm(rel - np.einsum("ij,ij->i", rel, normals)[:, None] * normals, axis=1)
+        return -penny_opening(r, a, p, E, nu)[:, None] * normals
+
+    return exact
+
+
 def inclined_crack_jump(b: float, psi: float, sigma: float, F: float, E: float, nu: float):
     """Exact jump of the inclined frictional crack, from the slip field on both faces.
 
@@ -135,10 +161,12 @@ def inclined_crack_jump(b: float, psi: float, sigma: float, F: float, E: float, 
 
 
 def exact_jump(scene) -> Callable:
-    """The exact jump of a shipped verification scene (``sneddon*`` or ``inclined_crack*``)."""
+    """The exact jump of a verification scene: ``sneddon*``, ``penny*``, ``inclined_crack*``."""
     prm = scene.parameters
     if scene.name.startswith("sneddon"):
         return sneddon_jump(prm["a"], prm["p"], prm["E"], prm["nu"])
+    if scene.name.startswith("penny"):
+        return penny_jump(prm["a"], prm["p"], prm["E"], prm["nu"])
     if scene.name.startswith("inclined_crack"):
         return inclined_crack_jump(prm["b"], prm["psi"], prm["sigma"], prm["F"], prm["E"],
                                    prm["nu"])
