@@ -10,11 +10,14 @@ checks that
 
 * the reader's time steps are the times of the XDMF index, every one of them in
   ``summary.json`` (a solved step, or t = 0), the last one the end of a finished run;
-* every time step loads, with the numbers of points and cells of the index and exactly its
-  arrays (name, point/cell, components), finite, and equal to the per-step HDF5 data when h5py
-  is importable;
-* the displacement warps (Warp By Vector), and one PNG per file renders off-screen at the last
-  time (``OUTDIR/plots/paraview_<stem>.png``, or ``--png-dir``).
+* every time step loads, with the numbers of points and cells of the index, its cell type
+  (triangles, tetrahedra or segments) and exactly its arrays (name, point/cell, components),
+  finite, and equal to the per-step HDF5 data when h5py is importable;
+* the displacement warps (Warp By Vector) at every time step: the warped points are the points
+  moved by the scale factor times ``u``;
+* one PNG per file renders off-screen at the last time (``OUTDIR/plots/paraview_<stem>.png``,
+  or ``--png-dir``); in 3D the displacement is cut in half (a clip through the domain's centre)
+  so that the warped fractures show.
 
 A run killed at any moment (``kill -9``) must pass too: its index lists only completed steps.
 Prints one Markdown table row per file; the exit status is the number of files that failed.
@@ -30,6 +33,7 @@ from pathlib import Path
 
 from paraview import servermanager
 from paraview.simple import (
+    Clip,
     ColorBy,
     Delete,
     GetActiveView,
@@ -50,6 +54,10 @@ except ImportError:  # values are then checked for finiteness only
     h5py = None
 
 READERS = ("Xdmf3ReaderT", "Xdmf3ReaderS", "XDMFReader")
+
+#: VTK cell types a reader may make of each XDMF topology written by poromech (segments are
+#: two-point poly-lines, or lines).
+VTK_CELL = {"Polyline": {3, 4}, "Triangle": {5}, "Tetrahedron": {10}}
 
 
 class CheckError(AssertionError):
@@ -72,6 +80,8 @@ def read_index(path):
             attrs[att.get("Name")] = (att.get("Center"), 1 if len(dims) == 1 else dims[1],
                                       ref[0], ref[1])
         steps.append({"time": float(grid.find("Time").get("Value")),
+                      "topology": topo.get("TopologyType"),
+                      "solid": grid.find("Geometry").get("GeometryType") == "XYZ",
                       "cells": int(topo.get("NumberOfElements")),
                       "points": int(geo.get("Dimensions").split()[0]),
                       "attributes": attrs})
@@ -146,6 +156,10 @@ def check_step(reader, step, outdir):
         raise CheckError(f"t = {step['time']}: {data.GetNumberOfPoints()} points, "
                          f"{data.GetNumberOfCells()} cells; index: {step['points']}, "
                          f"{step['cells']}")
+    types = {data.GetCellType(i) for i in range(data.GetNumberOfCells())}
+    if len(types) != 1 or not types <= VTK_CELL[step["topology"]]:
+        raise CheckError(f"t = {step['time']}: VTK cell types {sorted(types)}, index "
+                         f"{step['topology']}")
     for center, fields in (("Node", data.GetPointData()), ("Cell", data.GetCellData())):
         want = {k: v for k, v in step["attributes"].items() if v[0] == center}
         have = {fields.GetArrayName(i) for i in range(fields.GetNumberOfArrays())}
@@ -167,23 +181,52 @@ def check_step(reader, step, outdir):
                     raise CheckError(f"t = {step['time']}: {name} differs from {file}")
 
 
-def render(reader, time, png):
-    """One off-screen picture at ``time``: the displacement warped, other series coloured."""
+def check_warp(reader, step):
+    """Warp By Vector moves every point by the scale factor times ``u`` (one time step)."""
+    reader.UpdatePipeline(step["time"])
+    data = first_leaf(servermanager.Fetch(reader))
+    points = vtk_to_numpy(data.GetPoints().GetData()).astype(float)
+    u = vtk_to_numpy(data.GetPointData().GetArray("u")).astype(float)
+    size = max(points.max(axis=0) - points.min(axis=0))
+    umax = abs(u).max()
+    scale = 0.1 * size / umax if umax > 0 else 1.0
+    warp = WarpByVector(Input=reader, Vectors=["POINTS", "u"], ScaleFactor=scale)
+    warp.UpdatePipeline(step["time"])
+    moved = vtk_to_numpy(first_leaf(servermanager.Fetch(warp)).GetPoints().GetData())
+    Delete(warp)
+    error = abs(moved - points - scale * u).max()
+    if moved.shape != points.shape or error > 1e-6 * size:
+        raise CheckError(f"t = {step['time']}: Warp By Vector moved the points by "
+                         f"scale × u ± {error:.2g}")
+
+
+def render(reader, time, png, solid):
+    """One off-screen picture at ``time``: the displacement warped, other series coloured.
+
+    ``solid``: a 3D run (a perspective view; the displacement clipped, 3D fractures coloured
+    by their normal jump).
+    """
     view = GetActiveViewOrCreate("RenderView")
     view.ViewSize = [1200, 650]
     view.ViewTime = time
     view.OrientationAxesVisibility = 0
     source, field = reader, None
     arrays = reader.PointData.keys() + reader.CellData.keys()
+    bounds = first_leaf(servermanager.Fetch(reader)).GetBounds()
     if "u" in reader.PointData.keys():
         magnitude = reader.PointData["u"].GetRange(-1)[1]
-        bounds = servermanager.Fetch(reader).GetBounds()
-        size = max(bounds[1] - bounds[0], bounds[3] - bounds[2])
+        size = max(bounds[1] - bounds[0], bounds[3] - bounds[2], bounds[5] - bounds[4])
         scale = 0.1 * size / magnitude if magnitude > 0 else 1.0
         source = WarpByVector(Input=reader, Vectors=["POINTS", "u"], ScaleFactor=scale)
+        if solid:  # cut in half: the warped fractures inside show
+            warp = source
+            source = Clip(Input=warp, ClipType="Plane")
+            source.ClipType.Origin = [0.5 * (bounds[2 * i] + bounds[2 * i + 1])
+                                      for i in range(3)]
+            source.ClipType.Normal = [0.0, 1.0, 0.0]
         field = ("POINTS", "u", "Magnitude")
     else:
-        for name in ("state", "p_m", "p_f", *arrays):
+        for name in (*(("jump_n",) if solid else ()), "state", "p_m", "p_f", *arrays):
             if name in arrays:
                 kind = "CELLS" if name in reader.CellData.keys() else "POINTS"
                 field = (kind, name)
@@ -194,14 +237,22 @@ def render(reader, time, png):
         display.RescaleTransferFunctionToDataRange(True, False)
         display.SetScalarBarVisibility(view, True)
     GetDisplayProperties(source, view).LineWidth = 3.0
-    view.InteractionMode = "2D"
+    if solid:
+        view.InteractionMode = "3D"
+        view.CameraPosition = [1.0, 2.5, 1.0]
+        view.CameraFocalPoint = [0.0, 0.0, 0.0]
+        view.CameraViewUp = [0.0, 0.0, 1.0]
+    else:
+        view.InteractionMode = "2D"
     ResetCamera(view)
     Render(view)
     png.parent.mkdir(parents=True, exist_ok=True)
     SaveScreenshot(str(png), view, ImageResolution=[1200, 650])
     Hide(source, view)
-    if source is not reader:
+    while source is not reader:
+        upstream = source.Input
         Delete(source)
+        source = upstream
 
 
 def check_file(reader_name, path, summary, png):
@@ -223,7 +274,9 @@ def check_file(reader_name, path, summary, png):
         raise CheckError(f"reader time steps {got}, index {times}")
     for s in steps:
         check_step(reader, s, path.parent)
-    render(reader, times[-1], png)
+        if any(a[0] == "Node" and name == "u" for name, a in s["attributes"].items()):
+            check_warp(reader, s)
+    render(reader, times[-1], png, steps[-1]["solid"])
     Delete(reader)
     return len(steps), sorted(steps[-1]["attributes"])
 

@@ -9,7 +9,9 @@ compares two such collections:
 * every ``*.csv`` (``fractures.csv``, probes, ...): the same rows and columns, every number equal
   to the precision it is printed with (a rounding flip of the last printed digit allowed);
 * every dataset of every HDF5 file of the XDMF series: equal to ``--rtol`` (1e-12) relative to
-  the largest value of the dataset.
+  the largest value of the dataset, the points and cells of each series (and the fields on
+  them) taken in an order that depends on the geometry only (cells by centroid, points by first
+  use), so that versions numbering the same mesh differently compare equal.
 
 Usage (the reference made with the other version's environment, e.g. a clone at that commit)::
 
@@ -31,6 +33,7 @@ import os
 import subprocess
 import sys
 import time
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import h5py
@@ -200,9 +203,72 @@ def compare_csv(ref: Path, new: Path, rtol: float | None = None) -> tuple[list[s
     return diffs, worst
 
 
-def compare_h5(ref: Path, new: Path, rtol: float) -> tuple[list[str], float]:
-    """Datasets equal to ``rtol`` relative to their largest value; and the largest such error."""
+class Canonical:
+    """The points and cells of an XDMF series in an order that depends on its geometry only.
+
+    Cells are sorted by centroid (x, then y, then z), points by their first use in the sorted
+    cells: two files holding the same mesh and fields in different numberings (e.g. written on
+    different numbers of ranks, or by versions that number the displacement nodes differently)
+    give the same arrays.
+
+    Args:
+        run: Output directory.
+        stem: The series (``displacement``, ``fractures``, ...).
+    """
+
+    def __init__(self, run: Path, stem: str):
+        with h5py.File(run / f"{stem}.h5") as f:
+            points, cells = f["mesh/points"][()], f["mesh/cells"][()]
+        centroids = points[cells].mean(axis=1)
+        self.cells = np.lexsort(centroids.T[::-1])
+        used, first = np.unique(cells[self.cells].ravel(), return_index=True)
+        unused = np.setdiff1d(np.arange(len(points)), used)
+        self.points = np.concatenate([used[np.argsort(first)], unused])
+        self.label = np.empty(len(points), dtype=np.int64)
+        self.label[self.points] = np.arange(len(points))
+        self.centers = {att.get("Name"): att.get("Center") for att in
+                        ET.parse(run / f"{stem}.xdmf").getroot().iter("Attribute")}
+
+    def __call__(self, name: str, values: np.ndarray) -> np.ndarray:
+        """A dataset of the series' files in the canonical order."""
+        if name == "mesh/points" or self.centers.get(name) == "Node":
+            return values[self.points]
+        if name == "mesh/cells":
+            return self.label[values[self.cells]]
+        if self.centers.get(name) == "Cell":
+            return values[self.cells]
+        return values
+
+
+def series_of(run: Path, file: Path) -> Canonical | None:
+    """The canonical order of the XDMF series a file of ``run`` belongs to (None: no series)."""
+    top = file.relative_to(run).parts[0]
+    stem = top[: -len("_steps")] if top.endswith("_steps") else Path(top).stem
+    return Canonical(run, stem) if (run / f"{stem}.xdmf").exists() else None
+
+
+class SeriesOrders:
+    """The :class:`Canonical` orders of the series of two runs, made once per series."""
+
+    def __init__(self, ref: Path, new: Path):
+        self.ref, self.new, self.cache = ref, new, {}
+
+    def __call__(self, f: Path, g: Path) -> tuple[Canonical | None, Canonical | None]:
+        """The orders of the series that file ``f`` of the reference and ``g`` belong to."""
+        key = f.relative_to(self.ref).parts[0]
+        if key not in self.cache:
+            self.cache[key] = (series_of(self.ref, f), series_of(self.new, g))
+        return self.cache[key]
+
+
+def compare_h5(ref: Path, new: Path, rtol: float, orders=(None, None)) -> tuple[list[str], float]:
+    """Datasets equal to ``rtol`` relative to their largest value; and the largest such error.
+
+    ``orders``: the :class:`Canonical` orders of the two files' series (None: as stored).
+    """
     diffs, worst = [], 0.0
+    keep = (lambda n, v: v)  # noqa: E731
+    order_a, order_b = (o or keep for o in orders)
     with h5py.File(ref) as fa, h5py.File(new) as fb:
         names: list[str] = []
         fa.visititems(lambda n, o: names.append(n) if isinstance(o, h5py.Dataset) else None)
@@ -211,6 +277,8 @@ def compare_h5(ref: Path, new: Path, rtol: float) -> tuple[list[str], float]:
                 diffs.append(f"{new.name}:{n} missing")
                 continue
             a, b = np.asarray(fa[n]), np.asarray(fb[n])
+            if a.shape == b.shape:
+                a, b = order_a(n, a), order_b(n, b)
             if a.shape != b.shape:
                 diffs.append(f"{new.name}:{n} shape {a.shape} != {b.shape}")
                 continue
@@ -236,8 +304,9 @@ def compare(ref: Path, new: Path, rtol: float, csv_rtol: float | None = None) ->
         d = compare_summary(a / "summary.json", b / "summary.json")
         row["summary"] = "identical" if not d else f"{len(d)} differences"
         row["diffs"] += d
+        orders = SeriesOrders(a, b)
         for kind, check in (("csv", lambda f, g: compare_csv(f, g, csv_rtol)),
-                            ("h5", lambda f, g: compare_h5(f, g, rtol))):
+                            ("h5", lambda f, g, o=orders: compare_h5(f, g, rtol, o(f, g)))):
             for f in sorted(a.rglob(f"*.{kind}")):
                 g = b / f.relative_to(a)
                 if not g.exists():

@@ -6,11 +6,13 @@ keyed by the input (gmsh) cell number for cell-wise data and for the dofs of a L
 data. A run can therefore be continued on any number of ranks, from the same scene (the mesh is
 generated again, identically, from the scene stored next to the outputs).
 
-The file is written by rank 0 through a temporary name and a rename, so a killed run keeps the
-checkpoint of its last completed step. (``adios4dolfinx``, the FEniCSx checkpoint library, does
-not install with the pinned stack — it requires a ``fenics-dolfinx`` distribution and the
-``adios2`` Python bindings, neither of which the ``dolfinx-solver-real`` wheel provides — and it
-stores functions on standard dofmaps, not on the duplicated-node spaces used here.)
+Every rank writes its own rows (:func:`poromech.io.mpiio.write_h5`) into a temporary file that
+rank 0 renames when complete, so a killed run keeps the checkpoint of its last completed step.
+On restart every rank reads only the rows it needs (:class:`StoredRows`). (``adios4dolfinx``,
+the FEniCSx checkpoint library, does not install with the pinned stack — it requires a
+``fenics-dolfinx`` distribution and the ``adios2`` Python bindings, neither of which the
+``dolfinx-solver-real`` wheel provides — and it stores functions on standard dofmaps, not on the
+duplicated-node spaces used here.)
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ import numpy.typing as npt
 from dolfinx import fem
 from mpi4py import MPI
 
-from poromech.io.xdmf import atomic_h5, gather_rows, root_write
+from poromech.io.mpiio import Rows, write_h5
 from poromech.mesh.entities import input_cells
 from poromech.mesh.fractured import FracturedMesh
 from poromech.physics import Keyed
@@ -34,6 +36,7 @@ from poromech.physics import Keyed
 __all__ = [
     "CHECKPOINT",
     "Keyed",
+    "StoredRows",
     "cell_dof_rows",
     "face_dof_rows",
     "load_checkpoint",
@@ -50,25 +53,49 @@ CHECKPOINT = "checkpoint.h5"
 
 def save_checkpoint(comm: MPI.Comm, outdir: Path, meta: dict, arrays: dict[str, Keyed]) -> None:
     """Write the keyed arrays (global row ids, values) and metadata atomically (collective)."""
-    full = {name: gather_rows(comm, ids, values) for name, (ids, values) in arrays.items()}
-    root_write(comm, _write, Path(outdir) / CHECKPOINT, meta, full)
+    names = list(arrays)
+    local = np.array([int(np.max(arrays[k][0], initial=-1)) for k in names], dtype=np.int64)
+    sizes = np.empty_like(local)
+    comm.Allreduce(local, sizes, op=MPI.MAX)
+    rows = {k: Rows(np.asarray(arrays[k][0], dtype=np.int64), np.asarray(arrays[k][1]),
+                    int(n) + 1) for k, n in zip(names, sizes, strict=True)}
+    write_h5(comm, Path(outdir) / CHECKPOINT, rows, {"meta": json.dumps(meta)})
 
 
-def _write(path: Path, meta: dict, full: dict) -> None:
-    with atomic_h5(path) as f:
-        f.attrs["meta"] = json.dumps(meta)
-        for name, arr in full.items():
-            f[name] = arr
+class StoredRows:
+    """An array of a checkpoint read by rows on demand: ``rows[keys]`` reads only those rows.
+
+    Args:
+        path: The checkpoint file.
+        name: The dataset.
+    """
+
+    #: Rows between two wanted ones still read in one piece rather than in two.
+    GAP = 4096
+
+    def __init__(self, path: Path, name: str):
+        self.path, self.name = Path(path), name
+
+    def __getitem__(self, index) -> np.ndarray:
+        """The rows ``index`` (an integer or an integer array of any shape)."""
+        index = np.asarray(index, dtype=np.int64)
+        ids, inverse = np.unique(index.ravel(), return_inverse=True)
+        with h5py.File(self.path, "r") as f:
+            dset = f[self.name]
+            out = np.empty((len(ids), *dset.shape[1:]), dtype=dset.dtype)
+            cut = np.flatnonzero(np.diff(ids) > self.GAP) + 1
+            for a, b in zip(np.r_[0, cut], np.r_[cut, len(ids)], strict=True):
+                if b > a:
+                    lo = int(ids[a])
+                    out[a:b] = dset[lo:int(ids[b - 1]) + 1][ids[a:b] - lo]
+        return out[inverse].reshape(index.shape + out.shape[1:])
 
 
-def load_checkpoint(comm: MPI.Comm, outdir: Path) -> tuple[dict, dict[str, np.ndarray]]:
-    """Read a checkpoint on every rank (collective): metadata and full arrays."""
+def load_checkpoint(comm: MPI.Comm, outdir: Path) -> tuple[dict, dict[str, StoredRows]]:
+    """The metadata and the arrays of a checkpoint, read by rows on demand (on every rank)."""
     path = Path(outdir) / CHECKPOINT
-    data = None
-    if comm.rank == 0:
-        with h5py.File(path, "r") as f:
-            data = (json.loads(f.attrs["meta"]), {k: f[k][()] for k in f.keys()})
-    return comm.bcast(data, root=0)
+    with h5py.File(path, "r") as f:
+        return json.loads(f.attrs["meta"]), {k: StoredRows(path, k) for k in f.keys()}
 
 
 def scalar_row(comm: MPI.Comm, value: float) -> Keyed:
@@ -89,7 +116,7 @@ def cell_dof_rows(fm: FracturedMesh, V: fem.FunctionSpace, values: npt.NDArray) 
 
 
 def set_cell_dof_rows(fm: FracturedMesh, f: fem.Function, rows: np.ndarray) -> None:
-    """Inverse of :func:`cell_dof_rows`, from the full array, on owned and ghost cells."""
+    """Inverse of :func:`cell_dof_rows` (rows indexed by input cell), on owned and ghost cells."""
     keys = input_cells(fm.msh, owned=False)
     bs = f.function_space.dofmap.index_map_bs
     dofs = f.function_space.dofmap.list[: len(keys)]

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import dolfinx_solver  # noqa: F401
 
+import basix
 import dolfinx
 import numpy as np
 import numpy.typing as npt
@@ -29,9 +30,11 @@ from dolfinx import fem
 from mpi4py import MPI
 
 from poromech.errors import OutputError
+from poromech.io.mpiio import block_owner, exchange, rank_keys, write_ordered
 from poromech.io.xdmf import MeshPiece, atomic_write_text, root_write
 from poromech.mesh.entities import input_cells
 from poromech.mesh.fractured import FracturedMesh
+from poromech.parallel import on_root
 
 __all__ = [
     "CSV_COLUMNS",
@@ -58,28 +61,60 @@ _P2_SPLIT_TET = np.array([[0, 9, 8, 7], [9, 1, 6, 5], [8, 6, 2, 4], [7, 5, 4, 3]
                           [9, 8, 7, 5], [9, 6, 8, 5], [8, 7, 5, 4], [8, 6, 4, 5]])
 
 
-def displacement_mesh(V: fem.FunctionSpace) -> MeshPiece:
-    """The nodes of a (cracked) vector Lagrange space as an output mesh (local data).
+def node_keys(fm: FracturedMesh, V: fem.FunctionSpace) -> npt.NDArray[np.int64]:
+    """A key of every local dof block of a cracked P1 or P2 space that ignores the partition.
 
-    Points are the owned dof blocks (global block numbers); cells are the owned cells, split
-    into four sub-triangles for P2.
+    A vertex node is known by its cracked (duplicated) vertex ``v``, an edge node by its edge's
+    vertices ``a < b``: the key is ``v·N + v`` or ``a·N + b`` with ``N`` the number of cracked
+    vertices (collective: one reduction).
+
+    Returns:
+        The keys of the owned and ghost blocks, ``(n,)``.
+    """
+    msh, comm = V.mesh, V.mesh.comm
+    verts = np.asarray(fm.cracked_cells, dtype=np.int64)
+    n = int(comm.allreduce(int(verts.max(initial=-1)), op=MPI.MAX)) + 1
+    layout = V.dofmap.dof_layout
+    dofs = V.dofmap.list[: len(verts)]
+    if layout.num_dofs != verts.shape[1] + sum(len(layout.entity_dofs(1, e))
+                                               for e in range(_edges(msh).shape[0])):
+        raise ValueError("output meshes are made for P1 and P2 spaces only")
+    keys = np.empty(V.dofmap.index_map.size_local + V.dofmap.index_map.num_ghosts, np.int64)
+    for v in range(verts.shape[1]):
+        for j in layout.entity_dofs(0, v):
+            keys[dofs[:, j]] = verts[:, v] * n + verts[:, v]
+    for e, (i, k) in enumerate(_edges(msh)):
+        lo, hi = np.minimum(verts[:, i], verts[:, k]), np.maximum(verts[:, i], verts[:, k])
+        for j in layout.entity_dofs(1, e):
+            keys[dofs[:, j]] = lo * n + hi
+    return keys
+
+
+def _edges(msh: dolfinx.mesh.Mesh) -> npt.NDArray[np.int64]:
+    """The reference cell's edges as pairs of local vertices (basix order)."""
+    return np.asarray(basix.topology(msh.basix_cell())[1], dtype=np.int64)
+
+
+def displacement_mesh(fm: FracturedMesh, V: fem.FunctionSpace) -> MeshPiece:
+    """The nodes of a (cracked) vector Lagrange space as an output mesh (collective).
+
+    Points are the owned dof blocks, numbered in the order of :func:`node_keys` (by cracked
+    vertex, then edge), a numbering that does not depend on the partition. Cells are the owned
+    cells, split for P2 into four sub-triangles or eight sub-tetrahedra, numbered by input cell
+    and sub-cell.
     """
     msh = V.mesh
     imap = V.dofmap.index_map
-    nown = imap.size_local
-    blocks = np.arange(nown, dtype=np.int32)
+    pos, _ = rank_keys(msh.comm, node_keys(fm, V))
     ncells = msh.topology.index_map(msh.topology.dim).size_local
-    cell_blocks = imap.local_to_global(V.dofmap.list[:ncells].ravel()).reshape(ncells, -1)
-    if cell_blocks.shape[1] == 6:
-        cells = cell_blocks[:, _P2_SPLIT].reshape(-1, 3)
-    elif cell_blocks.shape[1] == 10:
-        cells = cell_blocks[:, _P2_SPLIT_TET].reshape(-1, 4)
-    else:
-        cells = cell_blocks
-    first_cell = msh.comm.exscan(len(cells)) or 0
-    coords = V.tabulate_dof_coordinates()[:nown, :msh.geometry.dim]
-    return MeshPiece(imap.local_to_global(blocks), coords,
-                     first_cell + np.arange(len(cells), dtype=np.int64), cells.astype(np.int64))
+    cell_nodes = pos[V.dofmap.list[:ncells]]
+    split = {6: _P2_SPLIT, 10: _P2_SPLIT_TET}.get(cell_nodes.shape[1])
+    if split is not None:
+        cell_nodes = cell_nodes[:, split].reshape(-1, split.shape[1])
+    nsub = 1 if split is None else len(split)
+    cell_ids = (input_cells(msh)[:, None] * nsub + np.arange(nsub)).ravel()
+    coords = V.tabulate_dof_coordinates()[: imap.size_local, : msh.geometry.dim]
+    return MeshPiece(pos[: imap.size_local], coords, cell_ids, cell_nodes.astype(np.int64))
 
 
 def owned_blocks(u: fem.Function) -> npt.NDArray[np.float64]:
@@ -94,16 +129,20 @@ def fracture_mesh(fm: FracturedMesh) -> MeshPiece:
 
     The first point of a face is the one nearer to the start of its fracture polyline; cell ids
     are the global fracture face numbers (sorted by fracture, then arc length). In 3D separate
-    triangles (points ``3i ... 3i+2``), counter-clockwise about ``n⁺``.
+    triangles (points ``3i ... 3i+2``), counter-clockwise about ``n⁺`` from the vertex of lowest
+    input number (an order independent of the partition).
     """
     faces = fm.fractures
     if fm.msh.topology.dim == 3:
         fm.msh.topology.create_connectivity(2, 0)
-        nodes = dolfinx.mesh.entities_to_geometry(fm.msh, 2, faces.facets)
-        x = fm.msh.geometry.x[nodes] if len(faces.facets) else np.empty((0, 3, 3))
+        nodes = dolfinx.mesh.entities_to_geometry(fm.msh, 2, faces.facets).reshape(-1, 3)
+        x = fm.msh.geometry.x[nodes]
         area = np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0])
         swap = np.einsum("ni,ni->n", area, faces.normal) < 0
-        x[swap] = x[swap][:, ::-1]
+        nodes[swap] = nodes[swap][:, ::-1]
+        inputs = np.asarray(fm.msh.geometry.input_global_indices, dtype=np.int64)[nodes]
+        turn = (np.argmin(inputs, axis=1)[:, None] + np.arange(3)) % 3
+        x = fm.msh.geometry.x[np.take_along_axis(nodes, turn, axis=1)]
         ids = faces.index.astype(np.int64)
         points = np.column_stack([3 * ids, 3 * ids + 1, 3 * ids + 2])
         return MeshPiece(points.ravel(), x.reshape(-1, 3), ids, points)
@@ -118,24 +157,31 @@ def fracture_mesh(fm: FracturedMesh) -> MeshPiece:
 
 
 def matrix_mesh(fm: FracturedMesh) -> MeshPiece:
-    """The owned cells of the connected mesh in gmsh's input numbering (cells and nodes)."""
+    """The owned cells and nodes of the connected mesh in gmsh's input numbering."""
     msh = fm.msh
     cells = input_cells(msh)
     geo = msh.geometry
     nodes = geo.dofmaps[0][: len(cells)]
     inputs = np.asarray(geo.input_global_indices, dtype=np.int64)
-    used = np.unique(nodes)
-    return MeshPiece(inputs[used], geo.x[used, :geo.dim], cells, inputs[nodes])
+    owned = geo.index_map().size_local
+    return MeshPiece(inputs[:owned], geo.x[:owned, :geo.dim], cells, inputs[nodes])
 
 
 class FractureTable:
-    """``fractures.csv``: one row per fracture face and output time (collective ``write``).
+    """``fractures.csv``: one row per fracture face and output time (collective methods).
+
+    The rows of a time are sorted by global face number and appended by every rank at once:
+    each rank sends its faces' rows to the rank holding their block of the face numbering
+    (:func:`poromech.io.mpiio.block_owner`), which formats its block and writes it after the
+    blocks of the lower ranks (:func:`poromech.io.mpiio.write_ordered`). No rank holds more
+    than its block, and the file is the same on any number of ranks.
 
     Args:
         fm: The fractured mesh.
         path: The CSV file.
-        columns: Value columns after ``time, fracture, s, x, y``; a column ``state`` holds
-            the codes 0, 1, 2 and is written as a word: open, stick or slip.
+        columns: Value columns after ``time, fracture, s, x, y`` (2D) or ``time, fracture, x,
+            y, z`` (3D); a column ``state`` holds the codes 0, 1, 2 and is written as a word:
+            open, stick or slip.
         resume_until: When continuing a run, keep the rows up to this time; None starts anew.
     """
 
@@ -147,32 +193,35 @@ class FractureTable:
         #: Columns locating a face: arc length and midpoint in 2D, the midpoint in 3D.
         self.place = ("s", "x", "y") if fm.msh.topology.dim == 2 else ("x", "y", "z")
         self.columns = ("time", "fracture", *self.place, *columns)
-        root_write(self.comm, self._start, resume_until)
+        self._end = on_root(self.comm, self._start, resume_until)
 
-    def _start(self, resume_until: float | None) -> None:
-        """The header, and the rows of an earlier run up to ``resume_until`` (rank 0)."""
-        keep = ""
+    def _start(self, resume_until: float | None) -> int:
+        """The header, or the rows of an earlier run up to ``resume_until``; the size (rank 0)."""
         if resume_until is not None and self.path.exists():
-            keep = "".join(line for line in self.path.read_text().splitlines(True)[1:]
-                           if float(line.split(",", 1)[0]) <= resume_until * (1 + 1e-12))
-        atomic_write_text(self.path, ",".join(self.columns) + "\n" + keep)
+            try:
+                return _cut_after(self.path, resume_until)
+            except OSError as err:
+                raise OutputError(f"could not write {self.path}: "
+                                  f"{os.strerror(err.errno)}") from None
+        header = ",".join(self.columns) + "\n"
+        atomic_write_text(self.path, header)
+        return len(header.encode())
 
     def write(self, t: float, values: dict[str, npt.NDArray]) -> None:
         """Append the rows of time ``t`` from owned face values (one array per column)."""
         faces = self.fm.fractures
-        place = [faces.s, faces.midpoint] if len(self.place) == 3 and self.place[0] == "s" \
-            else [faces.midpoint]
+        place = [faces.s, faces.midpoint] if self.place[0] == "s" else [faces.midpoint]
         start = 2 + len(self.place)
         data = np.column_stack([faces.index, faces.fracture, *place,
                                 *[np.asarray(values[c], dtype=np.float64)
                                   for c in self.columns[start:]]])
-        gathered = self.comm.gather(data, root=0)
-        root_write(self.comm, self._append, t, gathered)
+        owner = block_owner(faces.index, self.fm.num_fracture_faces, self.comm.size)
+        rows, _ = exchange(self.comm, owner, data.reshape(len(faces.index), len(self.columns)))
+        text = self._format(t, rows[np.argsort(rows[:, 0])])
+        self._end = write_ordered(self.comm, self.path, self._end, text.encode())
 
-    def _append(self, t: float, gathered: list) -> None:
-        """Append the rows of one time in one write (rank 0)."""
-        rows = np.concatenate(gathered)
-        rows = rows[np.argsort(rows[:, 0])]
+    def _format(self, t: float, rows: npt.NDArray[np.float64]) -> str:
+        """The CSV lines of sorted rows (face, fracture, place..., values...)."""
         names = self.fm.geometry.fracture_names
         buf = io.StringIO()
         w = csv.writer(buf, lineterminator="\n")
@@ -183,11 +232,41 @@ class FractureTable:
             for i in state:
                 cells[i] = self.STATE_WORDS[int(r[i])]
             w.writerow(cells)
-        try:
-            with open(self.path, "a") as fh:
-                fh.write(buf.getvalue())
-        except OSError as err:
-            raise OutputError(f"could not write {self.path}: {os.strerror(err.errno)}") from None
+        return buf.getvalue()
+
+
+def _cut_after(path: Path, until: float) -> int:
+    """Cut a table after its last complete row of a time up to ``until``; the new size.
+
+    Rows are in time order, so the first row to cut is found by bisection on byte offsets (a
+    few reads whatever the size). A row left incomplete by a killed run is cut too.
+    """
+    limit = until * (1 + 1e-12)
+    with open(path, "rb+") as fh:
+        lo = len(fh.readline())
+        hi = fh.seek(0, os.SEEK_END)
+        while lo < hi:  # lines before lo are kept, the line at hi (or the end) is not
+            fh.seek((lo + hi) // 2 - 1)
+            fh.readline()
+            start = fh.tell() if fh.tell() < hi else lo
+            fh.seek(start)
+            line = fh.readline()
+            if _row_after(line, limit):
+                hi = start
+            else:
+                lo = start + len(line)
+        fh.truncate(lo)
+    return lo
+
+
+def _row_after(line: bytes, limit: float) -> bool:
+    """Whether a table row is of a time after ``limit`` or incomplete."""
+    if not line.endswith(b"\n") or b"\0" in line:
+        return True
+    try:
+        return float(line.split(b",", 1)[0]) > limit
+    except ValueError:
+        return True
 
 
 def write_summary(comm: MPI.Comm, outdir: Path, summary: dict) -> None:

@@ -9,7 +9,10 @@ default), the PNGs that a run's outputs allow:
   in Fig. 2 of Beaude et al. 2023);
 * ``jumps_t<T>.png`` — normal and tangential jumps along each fracture, faces coloured by state;
 * ``pressure_t<T>.png`` — matrix pressure ``p_m`` per cell, fracture pressure ``p_f`` on the
-  fractures (flow and coupled runs).
+  fractures (flow and coupled runs);
+* in 3D, ``opening_t<T>.png`` — the fracture triangles in perspective, coloured by their
+  opening ``-jump_n``, instead of the deformed mesh; the jumps are drawn against the distance
+  from each fracture's centre.
 
 Each picture is described once, backend-neutral (:class:`Picture`), and drawn by pyvista
 (off-screen VTK) or, when pyvista/VTK cannot be imported or cannot render off-screen, by
@@ -37,6 +40,7 @@ from poromech.io.xdmf import Series
 __all__ = [
     "BACKENDS",
     "STATE_COLORS",
+    "Faces3D",
     "FractureEdges",
     "Lines",
     "Picture",
@@ -45,9 +49,12 @@ __all__ = [
     "choose_backend",
     "deformed_picture",
     "draw",
+    "draw_3d",
     "fracture_edges",
+    "limit_size",
     "mesh_edges",
     "nice_scale",
+    "opening_picture",
     "plot_jumps",
     "plot_run",
     "pressure_picture",
@@ -285,6 +292,102 @@ def _pressure_unit(p: npt.NDArray) -> tuple[str, float]:
     return ("MPa", 1e6) if big >= 1e6 else ("kPa", 1e3) if big >= 1e3 else ("Pa", 1.0)
 
 
+@dataclass
+class Faces3D:
+    """Triangles in space coloured by a value per triangle (a 3D picture).
+
+    Attributes:
+        points: ``(n, 3)`` (m).
+        triangles: ``(m, 3)``.
+        values: ``(m,)``.
+        label: Colour-bar title (with unit).
+        title: Picture title.
+        cmap: Matplotlib/VTK colour-map name.
+    """
+
+    points: npt.NDArray
+    triangles: npt.NDArray
+    values: npt.NDArray
+    label: str
+    title: str
+    cmap: str = "magma"
+
+    @property
+    def clim(self) -> tuple[float, float]:
+        """Colour range."""
+        lo, hi = float(np.min(self.values)), float(np.max(self.values))
+        return (lo, hi) if hi > lo else (lo - 0.5, hi + 0.5)
+
+
+def opening_picture(fractures: Series, step: int, name: str = "") -> Faces3D:
+    """The fracture faces of a 3D run coloured by their opening ``-jump_n`` (mm)."""
+    opening = -1e3 * fractures.fields(step)["jump_n"]
+    title = f"{name}  t = {fractures.times[step]:g} s: fracture opening -jump_n per face"
+    return Faces3D(fractures.points, fractures.cells, opening, "opening (mm)", title.strip())
+
+
+#: Direction the 3D pictures are seen from (z up).
+VIEW_3D = (0.35, -0.75, 1.0)
+
+
+def draw_3d(picture: Faces3D, path: Path, backend: str) -> Path:
+    """Draw a 3D picture into a PNG file with ``backend`` (``pyvista`` or ``matplotlib``)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if backend == "pyvista":
+        import pyvista as pv
+
+        pl = pv.Plotter(off_screen=True, window_size=WINDOW)
+        pl.set_background("white")
+        faces = pv.PolyData(picture.points, np.column_stack(
+            [np.full(len(picture.triangles), 3), picture.triangles]).ravel())
+        faces.cell_data[picture.label] = picture.values
+        pl.add_mesh(faces, scalars=picture.label, cmap=picture.cmap, clim=picture.clim,
+                    show_edges=True, edge_color="grey", line_width=0.5,
+                    scalar_bar_args={"title": picture.label, "color": "black", "fmt": "%.3g"})
+        pl.add_text(picture.title, position="upper_edge", font_size=9, color="black")
+        pl.view_vector(VIEW_3D, viewup=(0.0, 0.0, 1.0))
+        pl.show_bounds(color="black", xtitle="x (m)", ytitle="y (m)", ztitle="z (m)",
+                       font_size=10)
+        pl.screenshot(str(path))
+        pl.close()
+    else:
+        _draw_3d_matplotlib(picture, path)
+    return limit_size(path)
+
+
+def _draw_3d_matplotlib(pic: Faces3D, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    norm = Normalize(*pic.clim)
+    mappable = ScalarMappable(norm, pic.cmap)
+    fig = plt.figure(figsize=(WINDOW[0] / 140, WINDOW[1] / 140))
+    ax = fig.add_subplot(projection="3d")
+    ax.add_collection3d(Poly3DCollection(pic.points[pic.triangles],
+                                         facecolors=mappable.to_rgba(pic.values),
+                                         edgecolors=(0.5, 0.5, 0.5, 0.5), linewidths=0.2))
+    lo, hi = pic.points.min(axis=0), pic.points.max(axis=0)
+    pad = np.where(hi > lo, 0.0, 0.05 * float(np.max(hi - lo)) or 1.0)
+    lo, hi = lo - pad, hi + pad
+    for axis, a, b in zip("xyz", lo, hi, strict=True):
+        getattr(ax, f"set_{axis}lim")(a, b)
+        getattr(ax, f"set_{axis}label")(f"{axis} (m)")
+    ax.set_box_aspect(hi - lo)
+    x, y, z = VIEW_3D
+    ax.view_init(elev=float(np.degrees(np.arctan2(z, np.hypot(x, y)))),
+                 azim=float(np.degrees(np.arctan2(y, x))))
+    fig.colorbar(mappable, ax=ax, label=pic.label, shrink=0.7)
+    ax.set_title(pic.title, fontsize=9)
+    fig.savefig(path, dpi=140)
+    plt.close(fig)
+
+
 # -- backends --------------------------------------------------------------------------------
 def choose_backend(preferred: str = "auto") -> str:
     """The backend to draw with: pyvista if it can render off-screen, else matplotlib.
@@ -334,10 +437,10 @@ def draw(picture: Picture, path: Path, backend: str) -> Path:
         _draw_pyvista(picture, path)
     else:
         _draw_matplotlib(picture, path)
-    return _limit_size(path)
+    return limit_size(path)
 
 
-def _limit_size(path: Path, limit: int = MAX_PNG_BYTES) -> Path:
+def limit_size(path: Path, limit: int = MAX_PNG_BYTES) -> Path:
     """Keep a PNG under ``limit`` bytes: a 256-colour palette, then smaller if need be."""
     from PIL import Image
 
@@ -469,26 +572,38 @@ def plot_jumps(res: Results, time: float | None, path: Path) -> Path:
     names = list(dict.fromkeys(rows["fracture"]))
     ncol = min(3, len(names))
     nrow = -(-len(names) // ncol)
-    fig, axes = plt.subplots(nrow, ncol, figsize=(4 * ncol, 2.6 * nrow), squeeze=False,
+    height = 2.6 * nrow + (0.6 if nrow == 1 else 0.0)  # room for the title and the legend
+    fig, axes = plt.subplots(nrow, ncol, figsize=(max(4 * ncol, 7), height), squeeze=False,
                              sharey=True)
     colors = np.asarray(STATE_COLORS)[[STATES.index(w) for w in rows["state"]]]
+    along = "s" in rows  # 2D: the arc length; 3D: the distance from the fracture's centre
     for ax, name in zip(axes.flat, names, strict=False):
         on = rows["fracture"] == name
-        s = rows["s"][on]
+        if along:
+            s = rows["s"][on]
+        else:
+            x = np.column_stack([rows["x"][on], rows["y"][on], rows["z"][on]])
+            s = np.linalg.norm(x - x.mean(axis=0), axis=1)
+        order = np.argsort(s, kind="stable")
         for key, style in (("jump_n", "-"), ("jump_t", "--")):
-            v = 1e3 * rows[key][on]
-            ax.plot(s, v, style, color="0.3", lw=1)
-            ax.scatter(s, v, c=colors[on], s=9, zorder=3)
+            v = 1e3 * rows[key][on][order]
+            if along:
+                ax.plot(s[order], v, style, color="0.3", lw=1)
+            ax.scatter(s[order], v, c=colors[on][order], s=9, zorder=3,
+                       marker="o" if key == "jump_n" else "^")
         ax.axhline(0.0, color="0.7", lw=0.5)
         ax.set_title(f"fracture {name}", fontsize=9)
-        ax.set_xlabel("s (m)", fontsize=8)
+        ax.set_xlabel("s (m)" if along else "distance from the fracture's centre (m)",
+                      fontsize=8)
         ax.tick_params(labelsize=7)
     for ax in axes.flat[len(names):]:
         ax.set_visible(False)
     for ax in axes[:, 0]:
         ax.set_ylabel("jump (mm)", fontsize=8)
-    handles = [Line2D([], [], color="0.3", ls="-", label="jump_n (< 0 open)"),
-               Line2D([], [], color="0.3", ls="--", label="jump_t"),
+    line = {"ls": "-"} if along else {"ls": "", "marker": "o"}
+    handles = [Line2D([], [], color="0.3", **line, label="jump_n (< 0 open)"),
+               Line2D([], [], color="0.3", **({"ls": "--"} if along else
+                                             {"ls": "", "marker": "^"}), label="jump_t"),
                *(Line2D([], [], ls="", marker="o", color=c, label=w)
                  for w, c in zip(STATES, STATE_COLORS, strict=True))]
     fig.legend(handles=handles, loc="lower center", ncol=5, fontsize=8, frameon=False)
@@ -500,7 +615,7 @@ def plot_jumps(res: Results, time: float | None, path: Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=100)
     plt.close(fig)
-    return _limit_size(path)
+    return limit_size(path)
 
 
 # -- a run -----------------------------------------------------------------------------------
@@ -548,8 +663,12 @@ def plot_run(outdir: str | Path, time: float | None = None, scale: float | None 
     if "displacement" in present and "fractures" in present:
         disp, frac = res.series("displacement"), res.series("fractures")
         k = _step(disp, time)
-        pic = deformed_picture(disp, frac, k, _step(frac, disp.times[k]), scale, name)
-        written.append(draw(pic, out / f"deformed_{_tag(disp.times[k])}.png", backend))
+        if frac.points.shape[1] == 3:
+            pic3 = opening_picture(frac, _step(frac, disp.times[k]), name)
+            written.append(draw_3d(pic3, out / f"opening_{_tag(disp.times[k])}.png", backend))
+        else:
+            pic = deformed_picture(disp, frac, k, _step(frac, disp.times[k]), scale, name)
+            written.append(draw(pic, out / f"deformed_{_tag(disp.times[k])}.png", backend))
         if (res.path / "fractures.csv").exists():
             written.append(plot_jumps(res, disp.times[k], out / f"jumps_{_tag(disp.times[k])}.png"))
     if "flow" in present:

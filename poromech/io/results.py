@@ -48,12 +48,15 @@ def read_table(path: str | Path) -> dict[str, npt.NDArray]:
     """A CSV file of poromech (``fractures.csv``, ``probe_<name>.csv``) as column arrays.
 
     Numbers become float arrays (empty cells NaN); the ``fracture`` and ``state`` columns stay
-    strings (fracture names such as ``"1"``, states ``open``/``stick``/``slip``).
+    strings (fracture names such as ``"1"``, states ``open``/``stick``/``slip``). Rows that a
+    killed run left incomplete are left out.
     """
-    with open(path, newline="") as fh:
-        reader = csv.reader(fh)
-        header = next(reader)
-        rows = list(reader)
+    with open(path, "rb") as fh:
+        data = fh.read()
+    lines = data[: data.rfind(b"\n") + 1].decode(errors="replace").splitlines(keepends=True)
+    reader = csv.reader(line for line in lines if "\0" not in line)
+    header = next(reader)
+    rows = [r for r in reader if len(r) == len(header)]
     columns = list(zip(*rows, strict=True)) if rows else [()] * len(header)
     out: dict[str, npt.NDArray] = {}
     for name, values in zip(header, columns, strict=True):
@@ -113,8 +116,16 @@ class Results:
 
         Args:
             time: Keep the rows of the output time nearest to it; None: every row.
+
+        A time whose rows a killed run did not finish writing is left out.
         """
-        return _at_time(read_table(self.path / "fractures.csv"), time)
+        table = read_table(self.path / "fractures.csv")
+        times, counts = np.unique(table["time"], return_counts=True)
+        faces = self.summary.get("mesh", {}).get("fracture_faces")
+        if faces is not None and np.any(counts != faces):
+            keep = np.isin(table["time"], times[counts == faces])
+            table = {k: v[keep] for k, v in table.items()}
+        return _at_time(table, time)
 
     def probe(self, name: str, time: float | None = None) -> dict[str, npt.NDArray]:
         """``probe_<name>.csv`` (the fields along a probe line) as column arrays.

@@ -13,8 +13,11 @@ ParaView's "Xdmf3 Reader T" and by h5py. (One HDF5 file kept open for the whole 
 an unreadable object header when the process is killed; closing and reopening it for every step
 still leaves the whole file at the mercy of a kill during a step's write.)
 
-The data are gathered to rank 0, which writes them with h5py in the global numbering given by the
-caller, so the files do not depend on the number of MPI ranks.
+The data files are written by every rank at once (:func:`poromech.io.mpiio.write_h5`): each rank
+writes the rows of the points and cells it owns, at their place in the global numbering given
+by the caller, which does not depend on the partition; nothing that grows with the mesh passes
+through rank 0, and the files are the same on any number of ranks. Rank 0 writes only the
+index, whose size grows with the number of steps, not with the mesh.
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ import numpy.typing as npt
 from mpi4py import MPI
 
 from poromech.errors import OutputError
+from poromech.io.mpiio import Rows, RowSet, write_h5
 from poromech.parallel import on_root
 
 __all__ = [
@@ -40,7 +44,6 @@ __all__ = [
     "XDMFSeries",
     "atomic_h5",
     "atomic_write_text",
-    "gather_rows",
     "read_series",
     "root_write",
 ]
@@ -80,34 +83,15 @@ def root_write(comm: MPI.Comm, fn: Callable, *args) -> None:
     on_root(comm, fn, *args)
 
 
-def gather_rows(comm: MPI.Comm, ids: npt.NDArray[np.int64], values: npt.NDArray,
-                size: int | None = None) -> npt.NDArray | None:
-    """Assemble rows given by global id on every rank into one array on rank 0 (collective).
-
-    Rows given by several ranks must agree (the last one wins). Returns None on other ranks.
-    """
-    parts = comm.gather((np.asarray(ids, dtype=np.int64), np.asarray(values)), root=0)
-    if comm.rank != 0:
-        return None
-    n = size if size is not None else max((int(i.max()) + 1 for i, _ in parts if len(i)),
-                                          default=0)
-    shape = next(v.shape[1:] for _, v in parts)
-    dtype = np.result_type(*[v.dtype for _, v in parts])
-    out = np.zeros((n, *shape), dtype=dtype)
-    for i, v in parts:
-        out[i] = v
-    return out
-
-
 @dataclass(frozen=True)
 class MeshPiece:
-    """This rank's part of an output mesh, in global numbering.
+    """This rank's part of an output mesh, in a global numbering independent of the partition.
 
     Attributes:
-        point_ids: Global ids of the points this rank knows, ``(n,)``.
-        points: Their coordinates, ``(n, 2)`` (m).
+        point_ids: Global ids of the points this rank writes (each point on one rank), ``(n,)``.
+        points: Their coordinates, ``(n, d)`` (m).
         cell_ids: Global ids of the cells this rank writes (each cell on one rank), ``(m,)``.
-        cells: Their points as global point ids, ``(m, 2 or 3)``.
+        cells: Their points as global point ids, ``(m, k)``.
     """
 
     point_ids: npt.NDArray[np.int64]
@@ -140,26 +124,30 @@ class XDMFSeries:
     def __init__(self, comm: MPI.Comm, outdir: Path, stem: str, mesh: MeshPiece,
                  name: str = "mesh", resume_until: float | None = None):
         self.comm, self.outdir, self.stem, self.name = comm, Path(outdir), stem, name
-        self._points = (np.asarray(mesh.point_ids, dtype=np.int64), mesh.point_ids.size)
-        self._cells = np.asarray(mesh.cell_ids, dtype=np.int64)
-        self.num_points = int(comm.allreduce(int(mesh.point_ids.max(initial=-1)), op=MPI.MAX)) + 1
-        self.num_cells = int(comm.allreduce(int(mesh.cell_ids.max(initial=-1)), op=MPI.MAX)) + 1
+        self._point_rows, self._cell_rows = RowSet(mesh.point_ids), RowSet(mesh.cell_ids)
+        self.num_points = int(comm.allreduce(self._point_rows.last, op=MPI.MAX)) + 1
+        self.num_cells = int(comm.allreduce(self._cell_rows.last, op=MPI.MAX)) + 1
         self.nodes_per_cell = int(comm.allreduce(mesh.cells.shape[1], op=MPI.MAX))
         self.gdim = int(comm.allreduce(mesh.points.shape[1], op=MPI.MAX))
-        pts = gather_rows(comm, mesh.point_ids, mesh.points[:, :self.gdim], self.num_points)
-        cells = gather_rows(comm, mesh.cell_ids, mesh.cells, self.num_cells)
         self.entries: list[_Entry] = []
-        root_write(comm, self._start, pts, cells, resume_until)
+        write_h5(comm, self.outdir / f"{self.stem}.h5", {
+            "mesh/points": self._points(np.asarray(mesh.points, dtype=np.float64)[:, :self.gdim]),
+            "mesh/cells": self._cells(np.asarray(mesh.cells, dtype=np.int64)),
+        })
+        root_write(comm, self._start, resume_until)
 
-    def _start(self, pts, cells, resume_until: float | None) -> None:
-        """Mesh file and (empty or resumed) index (rank 0)."""
+    def _start(self, resume_until: float | None) -> None:
+        """The steps directory and the (empty or resumed) index (rank 0)."""
         self.steps_dir.mkdir(parents=True, exist_ok=True)
         if resume_until is not None:
             self.entries = self._read_index(resume_until)
-        with atomic_h5(self.outdir / f"{self.stem}.h5") as f:
-            f["mesh/points"] = np.ascontiguousarray(pts, dtype=np.float64)
-            f["mesh/cells"] = np.ascontiguousarray(cells, dtype=np.int64)
         self._write_index()
+
+    def _points(self, values: npt.NDArray) -> Rows:
+        return Rows(self._point_rows, values, self.num_points)
+
+    def _cells(self, values: npt.NDArray) -> Rows:
+        return Rows(self._cell_rows, values, self.num_cells)
 
     @property
     def steps_dir(self) -> Path:
@@ -178,33 +166,23 @@ class XDMFSeries:
         Args:
             t: Time (s).
             point_data: Values on this rank's points (the order of ``mesh.point_ids``), scalar
-                ``(n,)`` or vector ``(n, 2)``.
+                ``(n,)`` or vector ``(n, 2 or 3)``; 2D vectors get a third, zero, component.
             cell_data: Values on this rank's cells (the order of ``mesh.cell_ids``).
         """
         point_data, cell_data = point_data or {}, cell_data or {}
-        ids, _ = self._points
-        gathered = {
-            "point": {k: gather_rows(self.comm, ids, v, self.num_points)
-                      for k, v in point_data.items()},
-            "cell": {k: gather_rows(self.comm, self._cells, v, self.num_cells)
-                     for k, v in cell_data.items()},
-        }
-        root_write(self.comm, self._write_step, t, gathered)
+        rows = {**{k: self._points(_padded(v)) for k, v in point_data.items()},
+                **{k: self._cells(_padded(v)) for k, v in cell_data.items()}}
+        comps = {k: int(self.comm.allreduce(1 if r.values.ndim == 1 else r.values.shape[1],
+                                            op=MPI.MAX)) for k, r in rows.items()}
+        name = f"{len(self.entries) if self.comm.rank == 0 else 0:06d}.h5"
+        name = self.comm.bcast(name, root=0)
+        write_h5(self.comm, self.steps_dir / name, rows, {"time": float(t)})
+        entry = _Entry(float(t), f"{self.steps_dir.name}/{name}",
+                       {k: comps[k] for k in point_data}, {k: comps[k] for k in cell_data})
+        root_write(self.comm, self._add, entry)
 
-    def _write_step(self, t: float, gathered: dict) -> None:
-        """The step's data file, then the index (rank 0)."""
-        name = f"{len(self.entries):06d}.h5"
-        entry = _Entry(float(t), f"{self.steps_dir.name}/{name}")
-        with atomic_h5(self.steps_dir / name) as f:
-            f.attrs["time"] = float(t)
-            for center, data in gathered.items():
-                for key, arr in data.items():
-                    arr = np.asarray(arr, dtype=np.float64)
-                    if arr.ndim == 2:  # 2D vectors are padded to 3 components for ParaView
-                        arr = np.column_stack([arr, np.zeros(len(arr))])
-                    f[key] = arr
-                    comps = 1 if arr.ndim == 1 else arr.shape[1]
-                    (entry.point_fields if center == "point" else entry.cell_fields)[key] = comps
+    def _add(self, entry: _Entry) -> None:
+        """Index a step whose data file is complete (rank 0)."""
         self.entries.append(entry)
         self._write_index()
 
@@ -269,6 +247,14 @@ class XDMFSeries:
             if f not in keep:
                 f.unlink()
         return kept
+
+
+def _padded(values: npt.NDArray) -> npt.NDArray[np.float64]:
+    """Field values as float64; 2D vectors padded to 3 components for ParaView."""
+    values = np.asarray(values, dtype=np.float64)
+    if values.ndim == 2 and values.shape[1] == 2:
+        values = np.column_stack([values, np.zeros(len(values))])
+    return values
 
 
 @dataclass

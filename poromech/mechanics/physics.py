@@ -239,7 +239,7 @@ class MechanicsPhysics:
         with self.timer.phase("output"):
             if out.xdmf:
                 self._series["u"] = XDMFSeries(comm, outdir, "displacement",
-                                               displacement_mesh(self.model.V), "u",
+                                               displacement_mesh(self.fm, self.model.V), "u",
                                                resume_until)
                 if self.model.faces is not None:
                     self._series["fractures"] = XDMFSeries(comm, outdir, "fractures",
