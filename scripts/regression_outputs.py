@@ -206,7 +206,8 @@ def compare_csv(ref: Path, new: Path, rtol: float | None = None) -> tuple[list[s
 class Canonical:
     """The points and cells of an XDMF series in an order that depends on its geometry only.
 
-    Cells are sorted by centroid (x, then y, then z), points by their first use in the sorted
+    Cells are sorted by centroid (x, then y, then z, each rounded to ``TOLERANCE`` times the
+    mesh's size so that round-off does not reorder them), points by their first use in the sorted
     cells: two files holding the same mesh and fields in different numberings (e.g. written on
     different numbers of ranks, or by versions that number the displacement nodes differently)
     give the same arrays.
@@ -216,11 +217,16 @@ class Canonical:
         stem: The series (``displacement``, ``fractures``, ...).
     """
 
+    #: Centroids closer than this, relative to the mesh's size, sort as equal coordinates.
+    TOLERANCE = 1e-9
+
     def __init__(self, run: Path, stem: str):
         with h5py.File(run / f"{stem}.h5") as f:
             points, cells = f["mesh/points"][()], f["mesh/cells"][()]
         centroids = points[cells].mean(axis=1)
-        self.cells = np.lexsort(centroids.T[::-1])
+        size = float(np.ptp(points, axis=0).max()) if len(points) else 1.0
+        grid = np.round(centroids / (self.TOLERANCE * size))  # round-off does not reorder
+        self.cells = np.lexsort(grid.T[::-1])
         used, first = np.unique(cells[self.cells].ravel(), return_index=True)
         unused = np.setdiff1d(np.arange(len(points)), used)
         self.points = np.concatenate([used[np.argsort(first)], unused])

@@ -209,6 +209,8 @@ def test_xdmf_files_are_consistent(runs):
 def check_tetrahedra(out):
     """Eight sub-tetrahedra of positive volume per P2 cell, filling it; midpoints on edges."""
     disp = read_series(out, "displacement")
+    tets = json.loads((out / "summary.json").read_text())["mesh"]["cells"]
+    assert disp.cells.shape == (8 * tets, 4)  # 8 sub-tetrahedra per P2 tetrahedron
     x = disp.points[disp.cells]
     vol = np.einsum("ni,ni->n", np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0]),
                     x[:, 3] - x[:, 0]) / 6.0
