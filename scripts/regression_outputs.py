@@ -48,14 +48,19 @@ SHIPPED = ("flemisch_case1", "flemisch_case2", "flemisch_case2_csv", "flow_barri
 
 def cases() -> dict[str, list[str]]:
     """Case name -> ``poromech run`` arguments."""
+    import yaml
+
     out = {name: [name] for name in SHIPPED}
+    root = Path(__file__).resolve().parents[1] / "configs"
     for scene in ("six_fractures", "six_fractures_mechanics"):
+        raw = yaml.safe_load((root / f"{scene}.yaml").read_text())
+        shipped = (raw["contact"]["formulation"], raw.get("degree", 1))
         for f in FORMULATIONS:
             for p in (1, 2):
-                key = f"{scene}-{f}-P{p}"
-                if scene == "six_fractures" and f == "nitsche" and p == 2:
-                    continue  # the shipped default
-                out[key] = [scene, "--set", f"contact.formulation={f}", "--set", f"degree={p}"]
+                if scene == "six_fractures" and (f, p) == shipped:
+                    continue  # the shipped scene itself
+                out[f"{scene}-{f}-P{p}"] = [scene, "--set", f"contact.formulation={f}",
+                                            "--set", f"degree={p}"]
     for theta in (0, 1):
         out[f"six_fractures_mechanics-nitsche-theta{theta}"] = [
             "six_fractures_mechanics", "--set", f"contact.theta={theta}"]

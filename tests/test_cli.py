@@ -31,7 +31,7 @@ def test_default_scene_outputs(tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["scene"] == "six_fractures" and summary["status"] == "converged"
     assert summary["physics"] == "poromechanics" and summary["completed_steps"] == 2
-    assert summary["formulation"] == "nitsche" and summary["degree"] == 2
+    assert summary["formulation"] == "mixed" and summary["degree"] == 2
     assert summary["mpi_ranks"] == 1 and summary["dofs"] > 10000
     assert summary["initial"]["reason"].startswith("CONVERGED")
     assert len(summary["solves"]) == 2
@@ -114,7 +114,8 @@ def test_parallel_run_matches_serial(tmp_path):
 def test_parallel_non_convergence_does_not_hang(tmp_path):
     proc = subprocess.run(
         [mpirun(), "-n", "2", *POROMECH, "run", "-q", "-o", str(tmp_path / "f"),
-         "--set", "time.steps=1", "-mech_snes_max_it", "1"],
+         "--set", "time.steps=1", "--set", "contact.formulation=nitsche",
+         "-mech_snes_max_it", "1"],
         capture_output=True, text=True, cwd=ROOT, timeout=300)
     assert proc.returncode == 3
     assert proc.stderr.count("did not converge") == 1  # reported once, by rank 0
