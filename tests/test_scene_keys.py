@@ -87,6 +87,7 @@ VARIANTS: dict[str, tuple[object, dict]] = {
     "time.max_cuts": (0, {"coupling.max_it": 1, "coupling.fallback": "none",
                           "solver.petsc": {"snes_max_it": 1}, "flow.linear_solver": "iterative",
                           "flow.petsc": {"ksp_max_it": 1}}),
+    "solver.linear_solver": ("iterative", {}),
     "solver.line_search": ("basic", {}),
     "solver.reuse_jacobian": (False, {}),
     "solver.condensation": (False, {"contact.formulation": "mixed"}),

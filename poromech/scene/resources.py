@@ -37,14 +37,19 @@ from mpi4py import MPI
 
 from poromech.geometry.box import BoxGeometry
 from poromech.geometry.plane import PlaneGeometry
+from poromech.scene.geometry import scene_dimension
+from poromech.scene.schema import ITERATIVE_FROM_UNKNOWNS_3D
 
 __all__ = [
+    "ITERATIVE_FORMULATIONS",
+    "ITERATIVE_FROM_UNKNOWNS_3D",
     "ResourceError",
     "RunEstimate",
     "available_memory",
     "check_resources",
     "estimate_cells",
     "estimate_run",
+    "mechanics_solver",
 ]
 
 log = logging.getLogger("poromech")
@@ -189,18 +194,26 @@ def estimate_cells(geo: PlaneGeometry, size: float, fracture_size: float, tip_si
     return CELLS_PER_AREA * density * 4.0**refinement
 
 
-#: Above this many unknowns ``solver.linear_solver: auto`` solves a 3D elastic problem with
-#: CG + GAMG; 2D problems always with MUMPS (fast there, and the condensed mixed solve needs it).
-ITERATIVE_FROM_UNKNOWNS_3D = 20_000
+#: Contact formulations whose Jacobian has displacement unknowns only, the systems that GAMG
+#: with the rigid-body modes preconditions; the others add multipliers or face averages
+#: (saddle-point systems) and are solved directly.
+ITERATIVE_FORMULATIONS = ("none", "nitsche")
 
 
 def mechanics_solver(scene, unknowns: float) -> str:
-    """``direct`` or ``iterative``: ``solver.linear_solver``, or chosen by dimension and size."""
+    """``direct`` or ``iterative``: ``solver.linear_solver``, or chosen by dimension and size.
+
+    ``auto`` is iterative for a 3D displacement-only system (:data:`ITERATIVE_FORMULATIONS`) of
+    more than :data:`ITERATIVE_FROM_UNKNOWNS_3D` unknowns, direct otherwise (every 2D scene).
+    Called before meshing with the estimated unknowns (memory) and after it with the actual
+    ones (the solver that runs).
+    """
     choice = scene.solver.linear_solver
     if choice != "auto":
         return choice
-    dim = 3 if scene.geometry.domain.box is not None else 2
-    return "iterative" if dim == 3 and unknowns > ITERATIVE_FROM_UNKNOWNS_3D else "direct"
+    iterative = (scene_dimension(scene) == 3 and scene.contact.formulation in ITERATIVE_FORMULATIONS
+                 and unknowns > ITERATIVE_FROM_UNKNOWNS_3D)
+    return "iterative" if iterative else "direct"
 
 
 def _direct_bytes(n: float) -> float:
