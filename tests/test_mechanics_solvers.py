@@ -1,6 +1,8 @@
 """The linear solvers of the mechanics: direct (MUMPS) and iterative (CG + GAMG), and the choice."""
 
+import copy
 import json
+import re
 import subprocess
 import sys
 
@@ -21,6 +23,7 @@ from poromech.io.checkpoint import cell_dof_rows
 from poromech.mechanics.linear import ITERATIVE_OPTIONS, rigid_body_modes
 from poromech.mesh.fractured import cracked_space
 from poromech.run import Run, build_mesh
+from poromech.scene import resources
 from poromech.scene.loading import load_scene, scene_from_dict
 from poromech.scene.resources import ITERATIVE_FROM_UNKNOWNS_3D, mechanics_solver
 
@@ -72,9 +75,11 @@ def test_iterative_matches_direct_on_the_penny_crack():
     iterative = penny_solution(comm, "solver.linear_solver=iterative")
     sd, si = direct["summary"], iterative["summary"]
     assert sd["linear_solver"]["kind"] == "direct" and sd["linear_solver"]["pc_type"] == "lu"
+    setup = si["linear_solver"].pop("time_preconditioner")
     assert si["linear_solver"] == {"kind": "iterative", "choice": "iterative", "ksp_type": "cg",
                                    "pc_type": "gamg", "krylov_iterations": si["solves"][0][
                                        "linear_iterations"], "preconditioner_setups": 1}
+    assert 0 < setup <= si["wall_time"]["linear_solve"]
     # a linear problem: one Newton iteration, the linear solve meets the Newton's tolerance
     assert si["solves"][0]["iterations"] == 1 and 10 <= si["linear_solver"][
         "krylov_iterations"] <= 80
@@ -148,19 +153,31 @@ def test_iterative_solver_one_rank_equals_two_ranks():
     assert abs(par["its"] - serial["summary"]["linear_solver"]["krylov_iterations"]) <= 10
 
 
-def test_preconditioner_kept_while_the_operator_is_unchanged():
-    """A linear problem in time: the GAMG hierarchy of step 1 serves every step (its matrix is
-    assembled again, and found equal); scene PETSc options win over the choice's defaults."""
+@pytest.mark.parametrize(("overrides", "reuses", "setups"), [
+    # the Jacobian of open fractures is kept: neither assembled nor set up again
+    ((), [0, 1, 1], [1, 0, 0]),
+    # a Young's modulus "in time" is assembled every step, found equal by its fingerprint
+    (("material.young=E + 0*t",), [0, 0, 0], [1, 0, 0]),
+    # solver.reuse_jacobian false: assembled and set up every step
+    (("solver.reuse_jacobian=false",), [0, 0, 0], [1, 1, 1]),
+])
+def test_preconditioner_kept_while_the_operator_is_unchanged(overrides, reuses, setups):
+    """A linear problem in time: the GAMG hierarchy of step 1 serves every step unless the
+    scene asks otherwise; scene PETSc options win over the choice's defaults."""
     def no_predictor(physics) -> None:  # which would make later steps exact, without a solve
         physics.predictor.extrapolate = False
 
     out = penny_solution(MPI.COMM_WORLD, "solver.linear_solver=iterative",
                          "fracture_pressure=1e6*t", "time={final: 1.0, steps: 3}",
-                         "solver.petsc.ksp_type=gmres", prepare=no_predictor)
+                         "solver.petsc.ksp_type=gmres", *overrides, prepare=no_predictor)
     records = out["summary"]["solves"]
-    assert [r["factorizations"] for r in records] == [1, 0, 0]
+    assert [r["jacobian_reuses"] for r in records] == reuses
+    assert [r["factorizations"] for r in records] == setups
     assert all(r["iterations"] == 1 and r["linear_iterations"] > 0 for r in records)
+    assert all((r["time_preconditioner"] > 0) == (n > 0) for r, n in zip(records, setups,
+                                                                          strict=True))
     assert out["summary"]["linear_solver"]["ksp_type"] == "gmres"
+    assert out["summary"]["linear_solver"]["preconditioner_setups"] == sum(setups)
 
 
 def test_auto_is_direct_in_2d_and_iterative_for_large_3d():
@@ -171,9 +188,24 @@ def test_auto_is_direct_in_2d_and_iterative_for_large_3d():
     assert mechanics_solver(penny, ITERATIVE_FROM_UNKNOWNS_3D + 1) == "iterative"
     with Run(sneddon) as run:
         summary = run.execute()
+    assert summary["linear_solver"].pop("time_preconditioner") > 0
     assert summary["dofs"] > 0 and summary["linear_solver"] == {
         "kind": "direct", "choice": "auto", "ksp_type": "preonly", "pc_type": "lu",
         "krylov_iterations": 0, "preconditioner_setups": 1}
+
+
+@pytest.mark.parametrize(("threshold", "kind"), [(100_000, "direct"), (1_000, "iterative")])
+def test_auto_decides_on_the_unknowns_of_the_mesh(monkeypatch, threshold, kind):
+    """The coarse penny crack (about 5,000 unknowns) below and above the threshold."""
+    monkeypatch.setattr(resources, "ITERATIVE_FROM_UNKNOWNS_3D", threshold)
+    with Run(load_scene(PENNY, COARSE)) as run:
+        summary = run.execute()
+        modes = run.physics.solver.linear.near_nullspace_size
+    assert 1_000 < summary["dofs"] < 100_000
+    assert summary["linear_solver"]["kind"] == kind
+    assert summary["linear_solver"]["choice"] == "auto"
+    assert (summary["linear_solver"]["krylov_iterations"] > 0) == (kind == "iterative")
+    assert modes == (6 if kind == "iterative" else 0)
 
 
 def test_iterative_2d_matches_direct():
@@ -209,6 +241,62 @@ def test_krylov_failure_fails_the_run_with_its_reason(tmp_path):
     assert proc.returncode == 3, proc.stdout + proc.stderr
     assert "DIVERGED_LINEAR_SOLVE" in proc.stderr
     assert "(cg + gamg) did not converge: DIVERGED_MAX_IT after 2 iterations" in proc.stderr
+    # the Krylov history, relative to the right-hand side: it starts at 1 and has not converged
+    history = re.search(r"relative residual at iteration 0: ([0-9.e+-]+), 1: ([0-9.e+-]+), "
+                        r"2: ([0-9.e+-]+)", proc.stderr)
+    assert history, proc.stderr
+    r0, _, r2 = map(float, history.groups())
+    assert r0 == 1.0 and 1e-11 < r2 < 1.0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"].startswith("failed") and "DIVERGED_MAX_IT" in summary["status"]
     assert ITERATIVE_OPTIONS["ksp_max_it"] > 2
+
+
+#: A box cut in two by a tilted fracture plane, each piece clamped on its own face.
+CUT = {
+    "name": "cut",
+    "geometry": {"domain": {"box": [0.0, 0.0, 0.0, 1.0, 1.0, 1.0]},
+                 "fractures": [{"name": "A", "polygon": [[0.0, 0.0, 0.4], [1.0, 0.0, 0.6],
+                                                         [1.0, 1.0, 0.6], [0.0, 1.0, 0.4]]}]},
+    "mesh": {"size": 0.3, "fracture_size": 0.15},
+    "degree": 2,
+    "material": {"young": 1.0e9, "poisson": 0.25},
+    "fracture_pressure": 1.0e5,
+    "contact": {"formulation": "none"},
+    "boundary_conditions": [{"boundary": "bottom", "displacement": [0.0, 0.0, 0.0]},
+                            {"boundary": "top", "displacement": [0.0, 0.0, 0.0]}],
+    "output": {"xdmf": False, "fractures_csv": False},
+}
+
+
+def test_iterative_on_a_body_cut_in_two_pieces():
+    """Two pieces, one rigid-body near-nullspace for the whole body: GAMG's aggregates do not
+    straddle the fracture, CG + GAMG gives MUMPS' solution in as few iterations as one piece."""
+    u, its = {}, {}
+    for kind in ("direct", "iterative"):
+        raw = copy.deepcopy(CUT)
+        raw["solver"] = {"linear_solver": kind}
+        with Run(scene_from_dict(raw)) as run:
+            summary = run.execute()
+            u[kind] = run.physics.model.u.x.array.copy()
+            its[kind] = summary["linear_solver"]["krylov_iterations"]
+            pieces = run.mesh.pieces
+    assert [edges for _, edges in pieces] == [(0, 1, 2, 3, 4), (0, 1, 2, 3, 5)]  # bottom, top
+    assert MPI.COMM_WORLD.allreduce(run.mesh.msh.topology.index_map(3).size_local) == sum(
+        cells for cells, _ in pieces)
+    assert 10 <= its["iterative"] <= 60
+    assert _relative(u["iterative"], u["direct"]) < 1e-8
+
+
+def test_a_floating_piece_is_refused():
+    """Open fractures and a piece without displacement condition: a one-line error naming the
+    piece, before any assembly."""
+    raw = copy.deepcopy(CUT)
+    raw["boundary_conditions"][1] = {"boundary": "top", "traction": [0.0, 0.0, -1.0e5]}
+    with pytest.raises(ConfigError) as info, Run(scene_from_dict(raw)) as run:
+        run.execute()
+    message = str(info.value)
+    assert "\n" not in message
+    assert message.startswith("scene key 'boundary_conditions': the fractures cut the body "
+                              "into 2 pieces and piece 2 of 2 (")
+    assert "on back, front, left, right, top) has no displacement condition in xyz" in message

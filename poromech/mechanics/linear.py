@@ -38,6 +38,7 @@ from poromech.petsc_options import ksp_reason_name
 
 __all__ = [
     "DirectSolver",
+    "HISTORY_QUOTED",
     "ITERATIVE_OPTIONS",
     "IterativeSolver",
     "LinearStrategy",
@@ -92,15 +93,17 @@ STALE_MIN_UNKNOWNS = 100_000
 #: * CG measures the *unpreconditioned* residual ``‖F - J Y‖``, the norm the Newton tests;
 #:   ``ksp_rtol`` one decade below the Newton's ``snes_rtol`` (1e-10) ends a linear problem in
 #:   one Newton iteration with room for the drift of CG's recursive residual from the true one.
-#:   It is far tighter than the agreement with MUMPS asks for: on P2 penny cracks of 33k-190k
-#:   unknowns ``‖u_cg - u_lu‖∞ / ‖u_lu‖∞`` was 1-2e-12 (docs/mechanics3d/solvers.md).
+#:   It is far tighter than the agreement with MUMPS asks for: on P2 penny cracks of 16k-192k
+#:   unknowns ``max |u_cg - u_lu| / max |u_lu|`` was 1-3e-12 (docs/mechanics3d/solvers.md).
 #: * GAMG, smoothed aggregation (one prolongator smoothing step) with the rigid-body modes as
-#:   near-nullspace: 45-47 CG iterations from 80k to 510k unknowns. Unsmoothed aggregation
-#:   (``pc_gamg_agg_nsmooths 0``) sets up 3-4 times faster but its iterations grow (61, 66, 80);
-#:   without aggressive coarsening of the first level the set-up took 20 times longer; a
-#:   threshold of 0.01-0.05 saved iterations but cost more in set-up than it saved.
-#: * Chebyshev (degree 2) with Jacobi on every level (degree 3: 20 % fewer iterations, the same
-#:   time); at most 1000 equations on the coarsest level, factorized on one rank.
+#:   near-nullspace: 40-47 CG iterations from 16k to 1.0M unknowns. On one 192k Jacobian
+#:   (docs/mechanics3d/gamg_options.md, CPU seconds of set-up + solve): these defaults 45
+#:   iterations, 9.8 s; unsmoothed aggregation 68 iterations, 8.0 s (a 3.5 times cheaper
+#:   set-up, more iterations); a threshold of 0.01 / 0.05: 44 / 31 iterations, 10.8 / 24 s;
+#:   Chebyshev degree 3: 36 iterations, 10.4 s; no aggressive coarsening of the first level:
+#:   32 iterations, 45 s (set-up 7 times longer); coarse_eq_limit 100: 10.1 s.
+#: * Chebyshev (degree 2) with Jacobi on every level; at most 1000 equations on the coarsest
+#:   level, factorized on one rank.
 ITERATIVE_OPTIONS: dict[str, object] = {
     "ksp_type": "cg",
     "ksp_norm_type": "unpreconditioned",
@@ -199,10 +202,25 @@ def is_direct(ksp: PETSc.KSP) -> bool:
     return ksp.getType() == PETSc.KSP.Type.PREONLY and ksp.getPC().getType() in ("lu", "cholesky")
 
 
+#: Residuals of a failed Krylov solve quoted in its message (evenly spread over its history).
+HISTORY_QUOTED = 8
+
+
+def _history(ksp: PETSc.KSP, b: float) -> str:
+    """The Krylov residual history relative to ``b``, a few iterations of it (empty if none)."""
+    h = np.asarray(ksp.getConvergenceHistory(), dtype=float)
+    if len(h) == 0 or b <= 0:
+        return ""
+    quoted = np.unique(np.linspace(0, len(h) - 1, min(len(h), HISTORY_QUOTED)).round())
+    return "; relative residual at iteration " + ", ".join(
+        f"{int(i)}: {h[int(i)] / b:.1e}" for i in quoted)
+
+
 def failure_message(ksp: PETSc.KSP, F: PETSc.Vec) -> str:
     """Why a linear solve of ``J Y = F`` failed: KSP and PC, reason, iterations, residual.
 
-    Collective (a norm).
+    For a Krylov solve (zero initial guess) also the residual history, relative to ``‖F‖``, at
+    :data:`HISTORY_QUOTED` iterations. Collective (a norm).
     """
     b = F.norm()
     its = ksp.getIterationNumber()
@@ -211,6 +229,7 @@ def failure_message(ksp: PETSc.KSP, F: PETSc.Vec) -> str:
     if ksp.getType() != PETSc.KSP.Type.PREONLY and b > 0:
         text += (f", residual {ksp.getResidualNorm() / b:.2e} of the initial (ksp_rtol "
                  f"{ksp.getTolerances()[0]:.0e}, ksp_max_it {ksp.getTolerances()[3]})")
+        text += _history(ksp, b)
     return text
 
 
@@ -394,11 +413,14 @@ class IterativeSolver:
         A: The Jacobian matrix.
         modes: Rigid-body modes of a displacement-only Jacobian (:func:`rigid_body_modes`),
             attached as its near-nullspace; None: none.
+        reuse: Keep the preconditioner for an assembled Jacobian equal to the set-up one
+            (``solver.reuse_jacobian``); False: set it up for every assembled Jacobian.
     """
 
     def __init__(self, ksp: PETSc.KSP, A: PETSc.Mat,
-                 modes: npt.NDArray[np.float64] | None = None):
+                 modes: npt.NDArray[np.float64] | None = None, reuse: bool = True):
         self.ksp, self.A, self.comm = ksp, A, A.getComm().tompi4py()
+        self.reuse = reuse
         self.nullspace = None if modes is None else near_nullspace(A, modes)
         self.near_nullspace_size = 0 if modes is None else len(modes)
         self._fresh = True  # a Jacobian was assembled since the last set-up
@@ -406,6 +428,8 @@ class IterativeSolver:
         rng = np.random.default_rng(self.comm.rank)
         self._probe.getArray()[:] = rng.random(self._probe.getLocalSize())
         self._fingerprint = None  # A z of the Jacobian of the last set-up
+        # residual norms of each solve (reset per solve), quoted when one fails
+        ksp.setConvergenceHistory(length=ksp.getTolerances()[3] + 1, reset=True)
 
     def assembled(self, states: npt.NDArray | None) -> None:
         """A new Jacobian is in the matrix: compared with the set-up one at the next solve."""
@@ -432,7 +456,7 @@ class IterativeSolver:
         On failure the record's ``linear_failure`` says why (KSP reason, iterations, residual).
         """
         ksp, pc = self.ksp, self.ksp.getPC()
-        if self._fresh and not self._unchanged():
+        if self._fresh and not (self.reuse and self._unchanged()):
             ksp.setOperators(self.A, self.A)
             pc.setReusePreconditioner(False)
             t0 = time.perf_counter()
@@ -473,11 +497,11 @@ def linear_strategy(ksp: PETSc.KSP, A: PETSc.Mat, prefix: str, *, reuse: bool, s
         ksp: The Newton's KSP, configured (``setFromOptions``).
         A: The Jacobian matrix.
         prefix: Options prefix of the Newton.
-        reuse: Reuse a factorization while the Jacobian is unchanged (direct).
+        reuse: Reuse a factorization or preconditioner while the Jacobian is unchanged.
         stale: Try stale-factorization GMRES (direct).
         modes: Computes the rigid-body modes of a displacement-only Jacobian; called for a
             Krylov KSP only, whose preconditioner may use them (GAMG).
     """
     if is_direct(ksp):
         return DirectSolver(ksp, A, prefix, reuse=reuse, stale=stale)
-    return IterativeSolver(ksp, A, None if modes is None else modes())
+    return IterativeSolver(ksp, A, None if modes is None else modes(), reuse=reuse)

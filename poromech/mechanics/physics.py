@@ -15,8 +15,10 @@ from pathlib import Path
 import dolfinx_solver  # noqa: F401
 
 import numpy as np
+from mpi4py import MPI
 from petsc4py import PETSc
 
+from poromech.errors import ConfigError
 from poromech.io.checkpoint import (
     cell_dof_rows,
     face_dof_rows,
@@ -38,7 +40,8 @@ from poromech.scene.resources import mechanics_solver
 from poromech.scene.schema import Scene
 from poromech.timing import Timer
 
-__all__ = ["MechanicsPhysics", "formulation_options", "linear_solver_options"]
+__all__ = ["MechanicsPhysics", "check_pieces", "floating_pieces", "formulation_options",
+           "linear_solver_options"]
 
 log = logging.getLogger("poromech")
 
@@ -61,6 +64,51 @@ def linear_solver_options(kind: str, formulation: str) -> dict:
     if kind == "direct":
         return {}
     return iterative_options(symmetric=formulation == "none")
+
+
+def floating_pieces(scene: Scene, fm: FracturedMesh) -> list[str]:
+    """The pieces of the cracked body that no displacement condition holds, described.
+
+    A piece (:attr:`~poromech.mesh.fractured.FracturedMesh.pieces`) is held when the
+    displacement conditions on the boundaries it touches fix every component somewhere, the
+    check the scene makes for the whole body (necessary, not sufficient, against rigid motion).
+    The rigid-body modes given to GAMG are global; on a cracked space the pieces do not share
+    dofs, so GAMG's aggregates never straddle a fracture and every piece's own rigid motions are
+    in its coarse space all the same.
+    """
+    names, d = fm.geometry.boundary_names, fm.msh.geometry.dim
+    out = []
+    for k, (cells, edges) in enumerate(fm.pieces):
+        fixed = [False] * d
+        touched = {names[e] for e in edges}
+        for bc in scene.boundary_conditions:
+            if bc.displacement is not None and bc.boundary in touched:
+                fixed = [f or c is not None for f, c in zip(fixed, bc.displacement, strict=True)]
+        if not all(fixed):
+            free = "".join(c for c, f in zip("xyz", fixed, strict=False) if not f)
+            where = ", ".join(sorted(touched)) or "no boundary"
+            out.append(f"piece {k + 1} of {len(fm.pieces)} ({cells} cells, on {where}) has no "
+                       f"displacement condition in {free}")
+    return out
+
+
+def check_pieces(scene: Scene, fm: FracturedMesh) -> None:
+    """Refuse a piece held by nothing (formulation none); warn of one held only by contact.
+
+    Raises:
+        ConfigError: Open fractures (``contact.formulation`` none) and a floating piece: its
+            rigid motions make the elastic operator singular.
+    """
+    floating = floating_pieces(scene, fm)
+    if not floating:
+        return
+    if scene.contact.formulation == "none":
+        raise ConfigError(f"scene key 'boundary_conditions': the fractures cut the body into "
+                          f"{len(fm.pieces)} pieces and {floating[0]}: with contact.formulation "
+                          "none nothing holds it (rigid-body motion); add a displacement "
+                          "condition on a boundary it touches")
+    for text in floating:
+        log.warning("%s: only contact holds it", text)
 
 
 def formulation_options(formulation: str) -> dict:
@@ -91,13 +139,14 @@ class MechanicsPhysics:
 
     counters = ("iterations", "face_iterations", "linear_iterations", "factorizations",
                 "stale_solves", "jacobian_reuses", "residual_evaluations", "time_assembly",
-                "time_linear")
+                "time_linear", "time_preconditioner")
     records_section = None
 
     def __init__(self, scene: Scene, fm: FracturedMesh, timer: Timer,
                  pressures: PressureCoupling | None = None):
         self.scene, self.timer, self.fm = scene, timer, fm
         self.writes_initial_state = False
+        check_pieces(scene, fm)
         singular = scene.contact.formulation == "mixed" and scene.degree == 1
         if singular:
             log.warning("mixed with P1 displacements is not inf-sup stable: multipliers are not "
@@ -123,7 +172,8 @@ class MechanicsPhysics:
                 modes=(lambda: rigid_body_modes(model.V)) if len(model.unknowns) == 1 else None,
             )
         self._log_linear_solver()
-        self.linear_totals = {"krylov_iterations": 0, "preconditioner_setups": 0}
+        self.linear_totals = {"krylov_iterations": 0, "preconditioner_setups": 0,
+                              "time_preconditioner": 0.0}
         condensed = self._condensed()
         if condensed is not None:
             self.solver.attach_condensation(condensed)
@@ -216,6 +266,7 @@ class MechanicsPhysics:
         self.timer.add("linear_solve", rec.time_linear)
         self.linear_totals["krylov_iterations"] += rec.linear_iterations
         self.linear_totals["preconditioner_setups"] += rec.factorizations
+        self.linear_totals["time_preconditioner"] += rec.time_preconditioner
         return rec
 
     # -- Physics interface -----------------------------------------------------------------
@@ -258,7 +309,8 @@ class MechanicsPhysics:
         if is_direct(self.solver.snes.getKSP()):
             work = f"{rec['factorizations']} factorizations"
         else:
-            work = (f"{rec['factorizations']} preconditioner set-ups, "
+            work = (f"{rec['factorizations']} preconditioner set-ups "
+                    f"({rec['time_preconditioner']:.2f} s), "
                     f"{rec['linear_iterations']} Krylov iterations")
         return (f"step {k + 1}/{n} t={t:g} s: {rec['reason']} in {rec['iterations']} {what}"
                 f"{face} "
@@ -398,7 +450,10 @@ class MechanicsPhysics:
 
     def finish(self, summary: dict, records: list[dict]) -> None:
         """The linear solver's work over every solve, and the condensed solve's, if any."""
-        summary.setdefault("linear_solver", {}).update(self.linear_totals)
+        totals = dict(self.linear_totals)
+        totals["time_preconditioner"] = self.fm.comm.allreduce(totals["time_preconditioner"],
+                                                               op=MPI.MAX)
+        summary.setdefault("linear_solver", {}).update(totals)
         if self.solver.condensed is not None:
             summary["condensed"] = self.solver.condensed.describe()
 
