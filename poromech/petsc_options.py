@@ -38,6 +38,7 @@ __all__ = [
     "PetscOptionError",
     "PrefixedOptions",
     "check_petsc_options",
+    "ksp_reason_name",
     "reason_name",
     "report_unused_options",
     "scene_options",
@@ -235,3 +236,12 @@ _SNES_REASONS = {v: k for k, v in vars(PETSc.SNES.ConvergedReason).items()
 def reason_name(reason: int) -> str:
     """The name of a SNES converged reason (``CONVERGED_FNORM_RELATIVE``), or its number."""
     return _SNES_REASONS.get(reason, str(reason))
+
+
+_KSP_REASONS = {v: k for k, v in vars(PETSc.KSP.ConvergedReason).items()
+                if not k.startswith("_")}
+
+
+def ksp_reason_name(reason: int) -> str:
+    """The name of a KSP converged reason (``DIVERGED_ITS``), or its number."""
+    return _KSP_REASONS.get(reason, str(reason))

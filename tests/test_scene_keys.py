@@ -39,6 +39,13 @@ NOT_WALKED = {
     "description": "free text by definition",
     "geometry.domain.polygon": "an alternative domain (tests/test_geometry.py)",
     "geometry.domain.boundary_names": "names a polygon's edges (tests/test_geometry.py)",
+    "geometry.domain.box": "the 3D domain: walked by tests/test_mechanics3d.py (validation, "
+                           "the penny crack, the slab)",
+    "geometry.fractures.0.polygon": "a 3D fracture (tests/test_mechanics3d.py)",
+    "geometry.fractures.0.disc.center": "a 3D disc fracture (configs/penny.yaml, "
+                                        "tests/test_mechanics3d.py)",
+    "geometry.fractures.0.disc.normal": "a 3D disc fracture (tests/test_mechanics3d.py)",
+    "geometry.fractures.0.disc.radius": "a 3D disc fracture (tests/test_mechanics3d.py)",
     "geometry.fractures.0.name": "a label: names the fracture in fractures.csv and flow.fractures",
     "geometry.fracture_file": "an alternative fracture source (tests/test_mesh_import.py)",
     "geometry.mesh.file": "an alternative geometry source (tests/test_mesh_import.py)",
@@ -87,6 +94,7 @@ VARIANTS: dict[str, tuple[object, dict]] = {
     "time.max_cuts": (0, {"coupling.max_it": 1, "coupling.fallback": "none",
                           "solver.petsc": {"snes_max_it": 1}, "flow.linear_solver": "iterative",
                           "flow.petsc": {"ksp_max_it": 1}}),
+    "solver.linear_solver": ("iterative", {}),
     "solver.line_search": ("basic", {}),
     "solver.reuse_jacobian": (False, {}),
     "solver.condensation": (False, {"contact.formulation": "mixed"}),

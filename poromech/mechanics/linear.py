@@ -8,27 +8,38 @@ from one solve to the next, is the strategy's business:
   kept while the assembled Jacobian is bitwise unchanged; when only a few contact points changed
   state since it was computed, GMRES preconditioned by the stale factorization is tried first
   (options prefix ``<prefix>stale_``), within a budget of iterations worth one factorization;
-* :class:`IterativeSolver` (any other KSP, e.g. ``ksp_type gmres`` + ``pc_type gamg``): the
-  preconditioner is set up again only for a Jacobian that was assembled since the last set-up.
+* :class:`IterativeSolver` (any other KSP, e.g. ``ksp_type cg`` + ``pc_type gamg``): the
+  preconditioner is set up again only when the assembled Jacobian differs from the one it was
+  set up for (a fingerprint ``A z`` with a fixed random ``z``); the rigid-body modes of the
+  displacement space (:func:`rigid_body_modes`) are attached to the matrix as the near-nullspace
+  that GAMG's aggregation interpolates.
 
-Both are chosen by :func:`linear_strategy` from the PETSc options of the solver's KSP. Every
-decision depends on contact states, sizes and iteration counts, never on measured times, so a run
-is reproducible.
+Both are chosen by :func:`linear_strategy` from the PETSc options of the solver's KSP, whose
+defaults for ``solver.linear_solver: iterative`` are :func:`iterative_options`. Every decision
+depends on contact states, sizes and iteration counts, never on measured times, so a run is
+reproducible.
 """
 
 from __future__ import annotations
 
+import time
+from collections.abc import Callable
 from typing import Protocol
 
 import dolfinx_solver  # noqa: F401
 
 import numpy as np
 import numpy.typing as npt
+from dolfinx import fem
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from poromech.petsc_options import ksp_reason_name
+
 __all__ = [
     "DirectSolver",
+    "HISTORY_QUOTED",
+    "ITERATIVE_OPTIONS",
     "IterativeSolver",
     "LinearStrategy",
     "STALE_BUDGET",
@@ -36,8 +47,12 @@ __all__ = [
     "STALE_MAX_IT",
     "STALE_MIN_UNKNOWNS",
     "STALE_RTOL",
+    "failure_message",
     "is_direct",
+    "iterative_options",
     "linear_strategy",
+    "near_nullspace",
+    "rigid_body_modes",
 ]
 
 #: GMRES iterations allowed with a stale factorization before refactorizing: about what one
@@ -71,13 +86,158 @@ STALE_BUDGET = STALE_MAX_IT
 STALE_MIN_UNKNOWNS = 100_000
 
 
+#: Defaults of ``solver.linear_solver: iterative`` for a symmetric positive definite Jacobian
+#: (open fractures: linear elasticity), merged over the Newton's defaults (prefix ``mech_``);
+#: the scene's ``solver.petsc`` and the command line override each of them.
+#:
+#: * CG measures the *unpreconditioned* residual ``‖F - J Y‖``, the norm the Newton tests;
+#:   ``ksp_rtol`` one decade below the Newton's ``snes_rtol`` (1e-10) ends a linear problem in
+#:   one Newton iteration with room for the drift of CG's recursive residual from the true one.
+#:   It is far tighter than the agreement with MUMPS asks for: on P2 penny cracks of 16k-192k
+#:   unknowns ``max |u_cg - u_lu| / max |u_lu|`` was 1-3e-12 (docs/mechanics3d/solvers.md).
+#: * GAMG, smoothed aggregation (one prolongator smoothing step) with the rigid-body modes as
+#:   near-nullspace: 40-47 CG iterations from 16k to 1.0M unknowns. On one 192k Jacobian
+#:   (docs/mechanics3d/gamg_options.md, CPU seconds of set-up + solve): these defaults 45
+#:   iterations, 9.8 s; unsmoothed aggregation 68 iterations, 8.0 s (a 3.5 times cheaper
+#:   set-up, more iterations); a threshold of 0.01 / 0.05: 44 / 31 iterations, 10.8 / 24 s;
+#:   Chebyshev degree 3: 36 iterations, 10.4 s; no aggressive coarsening of the first level:
+#:   32 iterations, 45 s (set-up 7 times longer); coarse_eq_limit 100: 10.1 s.
+#: * Chebyshev (degree 2) with Jacobi on every level; at most 1000 equations on the coarsest
+#:   level, factorized on one rank.
+ITERATIVE_OPTIONS: dict[str, object] = {
+    "ksp_type": "cg",
+    "ksp_norm_type": "unpreconditioned",
+    "ksp_rtol": 1e-11,
+    "ksp_atol": 0.0,
+    "ksp_max_it": 1000,
+    "pc_type": "gamg",
+    "pc_gamg_agg_nsmooths": 1,
+    "pc_gamg_threshold": 0.0,
+    "pc_gamg_coarse_eq_limit": 1000,
+    "mg_levels_ksp_type": "chebyshev",
+    "mg_levels_pc_type": "jacobi",
+    "pc_factor_mat_solver_type": None,  # the direct default, removed
+}
+
+
+def iterative_options(symmetric: bool) -> dict[str, object]:
+    """PETSc defaults of the iterative solve: CG, or GMRES for a non-symmetric Jacobian.
+
+    Args:
+        symmetric: The Jacobian is symmetric (open fractures); the semi-smooth Jacobian of
+            Nitsche contact in general is not (``θ ≠ 1``, friction).
+    """
+    if symmetric:
+        return dict(ITERATIVE_OPTIONS)
+    # right preconditioning: GMRES then measures the unpreconditioned residual, as CG does
+    return {**ITERATIVE_OPTIONS, "ksp_type": "gmres", "ksp_pc_side": "right",
+            "ksp_gmres_restart": 200}
+
+
+def rigid_body_modes(V: fem.FunctionSpace) -> npt.NDArray[np.float64]:
+    """Rigid-body displacements at the owned dofs of ``V``, orthonormal (collective).
+
+    The translations ``e_i`` and rotations ``e_k × (x - x̄)`` (3 modes in 2D, 6 in 3D), at the
+    coordinates of the owned dof nodes of the (cracked) vector space, in its blocked layout
+    ``x₀, y₀, (z₀,) x₁, ...``: the layout of the owned rows of a one-block Jacobian. On a cracked
+    space the copies of a node on either side of a fracture get the same values: these modes are
+    the kernel of the elastic operator without Dirichlet conditions. The coordinates are centred
+    on their mean (rotations about the body, not about a far origin) and the modes
+    orthonormalized (Cholesky QR, twice), so that their conditioning does not depend on where
+    the domain lies.
+
+    Returns:
+        ``(k, n)``: ``k`` modes, ``n`` owned dofs (owned nodes times ``d``).
+    """
+    comm = V.mesh.comm
+    d = V.dofmap.index_map_bs
+    n = V.dofmap.index_map.size_local
+    x = V.tabulate_dof_coordinates()[:n, :d]
+    count = comm.allreduce(n)
+    x = x - comm.allreduce(x.sum(axis=0)) / max(count, 1)
+    rotations = ((0, 1),) if d == 2 else ((1, 2), (2, 0), (0, 1))
+    modes = np.zeros((d + len(rotations), n, d))
+    for k in range(d):
+        modes[k, :, k] = 1.0
+    for m, (i, j) in enumerate(rotations):  # rotation about the axis normal to (e_i, e_j)
+        modes[d + m, :, i] = -x[:, j]
+        modes[d + m, :, j] = x[:, i]
+    modes = modes.reshape(len(modes), n * d)
+    for _ in range(2):
+        gram = comm.allreduce(modes @ modes.T)
+        modes = np.linalg.solve(np.linalg.cholesky(gram), modes)
+    return modes
+
+
+def near_nullspace(A: PETSc.Mat, modes: npt.NDArray[np.float64]) -> PETSc.NullSpace:
+    """Attach ``modes`` (one per row, owned rows of ``A``) as the near-nullspace of ``A``.
+
+    Sets the block size of ``A`` to the number of translations (the dofs per node), which
+    GAMG reads to aggregate nodes rather than single dofs. Collective.
+
+    Returns:
+        The null space object (owned by the caller, who destroys it).
+    """
+    k = modes.shape[0]
+    bs = 2 if k == 3 else 3
+    if A.getLocalSize()[0] != modes.shape[1]:
+        raise ValueError(f"{modes.shape[1]} owned dofs in the modes, {A.getLocalSize()[0]} rows "
+                         "of the matrix: rigid-body modes need a displacement-only Jacobian")
+    A.setBlockSize(bs)
+    vectors = []
+    for mode in modes:
+        v = A.createVecLeft()
+        v.setBlockSize(bs)
+        v.getArray()[:] = mode
+        vectors.append(v)
+    space = PETSc.NullSpace().create(vectors=vectors, comm=A.getComm())
+    A.setNearNullSpace(space)
+    for v in vectors:
+        v.destroy()
+    return space
+
+
 def is_direct(ksp: PETSc.KSP) -> bool:
     """Whether the KSP applies a factorization (preonly + LU/Cholesky)."""
     return ksp.getType() == PETSc.KSP.Type.PREONLY and ksp.getPC().getType() in ("lu", "cholesky")
 
 
+#: Residuals of a failed Krylov solve quoted in its message (evenly spread over its history).
+HISTORY_QUOTED = 8
+
+
+def _history(ksp: PETSc.KSP, b: float) -> str:
+    """The Krylov residual history relative to ``b``, a few iterations of it (empty if none)."""
+    h = np.asarray(ksp.getConvergenceHistory(), dtype=float)
+    if len(h) == 0 or b <= 0:
+        return ""
+    quoted = np.unique(np.linspace(0, len(h) - 1, min(len(h), HISTORY_QUOTED)).round())
+    return "; relative residual at iteration " + ", ".join(
+        f"{int(i)}: {h[int(i)] / b:.1e}" for i in quoted)
+
+
+def failure_message(ksp: PETSc.KSP, F: PETSc.Vec) -> str:
+    """Why a linear solve of ``J Y = F`` failed: KSP and PC, reason, iterations, residual.
+
+    For a Krylov solve (zero initial guess) also the residual history, relative to ``‖F‖``, at
+    :data:`HISTORY_QUOTED` iterations. Collective (a norm).
+    """
+    b = F.norm()
+    its = ksp.getIterationNumber()
+    text = (f"the linear solve ({ksp.getType()} + {ksp.getPC().getType()}) did not converge: "
+            f"{ksp_reason_name(ksp.getConvergedReason())} after {its} iterations")
+    if ksp.getType() != PETSc.KSP.Type.PREONLY and b > 0:
+        text += (f", residual {ksp.getResidualNorm() / b:.2e} of the initial (ksp_rtol "
+                 f"{ksp.getTolerances()[0]:.0e}, ksp_max_it {ksp.getTolerances()[3]})")
+        text += _history(ksp, b)
+    return text
+
+
 class LinearStrategy(Protocol):
     """How the Newton direction is solved, and what is kept between solves (collective)."""
+
+    #: Number of near-nullspace vectors attached to the matrix (0: none).
+    near_nullspace_size: int
 
     def assembled(self, states: npt.NDArray | None) -> None:
         """A new Jacobian was assembled into the matrix, in the contact states ``states``."""
@@ -124,6 +284,7 @@ class DirectSolver:
         self.reuse = reuse
         self.stale_min_unknowns = STALE_MIN_UNKNOWNS
         self.stale_budget = STALE_BUDGET
+        self.near_nullspace_size = 0
         self._values = None  # Jacobian values at the last factorization
         self._assembled = True  # the matrix was assembled since the last factorization
         self._jacobian_states = None  # contact states of the assembled Jacobian
@@ -214,10 +375,16 @@ class DirectSolver:
                 return True
         ksp.setOperators(self.A, self.A)
         ksp.getPC().setReusePreconditioner(False)
+        t0 = time.perf_counter()
+        ksp.setUp()  # the factorization (the solve would do it): timed on its own
+        record.time_preconditioner += time.perf_counter() - t0
         ksp.solve(F, Y)
         record.factorizations += 1
         self._factorized()
-        return ksp.getConvergedReason() > 0
+        if ksp.getConvergedReason() > 0:
+            return True
+        record.linear_failure = failure_message(ksp, F)
+        return False
 
     def forget(self) -> None:
         """The factorization is no longer trusted (a failed solve): refactorize next time."""
@@ -230,50 +397,111 @@ class DirectSolver:
 
 
 class IterativeSolver:
-    """A Krylov solve whose preconditioner is set up again only for a newly assembled Jacobian.
+    """A Krylov solve whose preconditioner is set up again only when the Jacobian changed.
 
     The KSP, its preconditioner and tolerances come from the Newton's PETSc options (e.g.
-    ``mech_ksp_type gmres``, ``mech_pc_type gamg``); a near-nullspace attached to the matrix by
-    the owner (rigid-body modes) is used by GAMG. Counts its set-ups as ``factorizations``.
+    ``mech_ksp_type cg``, ``mech_pc_type gamg``, :data:`ITERATIVE_OPTIONS`). A Jacobian
+    assembled since the last set-up is compared with the one the preconditioner was built from
+    by a fingerprint, ``A z`` for a fixed random ``z`` (one product; bitwise equal for an equal
+    matrix): a linear problem, or a contact problem in an unchanged active set, then keeps its
+    AMG hierarchy from one Newton iteration and one time step to the next. A false match (a
+    change invisible in ``A z``) would only leave the preconditioner stale; the Krylov method
+    always solves with the current matrix. Counts its set-ups as ``factorizations``.
 
     Args:
         ksp: The Newton's KSP.
         A: The Jacobian matrix.
+        modes: Rigid-body modes of a displacement-only Jacobian (:func:`rigid_body_modes`),
+            attached as its near-nullspace; None: none.
+        reuse: Keep the preconditioner for an assembled Jacobian equal to the set-up one
+            (``solver.reuse_jacobian``); False: set it up for every assembled Jacobian.
     """
 
-    def __init__(self, ksp: PETSc.KSP, A: PETSc.Mat):
-        self.ksp, self.A = ksp, A
+    def __init__(self, ksp: PETSc.KSP, A: PETSc.Mat,
+                 modes: npt.NDArray[np.float64] | None = None, reuse: bool = True):
+        self.ksp, self.A, self.comm = ksp, A, A.getComm().tompi4py()
+        self.reuse = reuse
+        self.nullspace = None if modes is None else near_nullspace(A, modes)
+        self.near_nullspace_size = 0 if modes is None else len(modes)
         self._fresh = True  # a Jacobian was assembled since the last set-up
+        self._probe = A.createVecRight()
+        rng = np.random.default_rng(self.comm.rank)
+        self._probe.getArray()[:] = rng.random(self._probe.getLocalSize())
+        self._fingerprint = None  # A z of the Jacobian of the last set-up
+        # residual norms of each solve (reset per solve), quoted when one fails
+        ksp.setConvergenceHistory(length=ksp.getTolerances()[3] + 1, reset=True)
 
     def assembled(self, states: npt.NDArray | None) -> None:
-        """A new Jacobian is in the matrix: the preconditioner is set up at the next solve."""
+        """A new Jacobian is in the matrix: compared with the set-up one at the next solve."""
         self._fresh = True
 
-    def solve(self, F: PETSc.Vec, Y: PETSc.Vec, record, states: npt.NDArray | None) -> bool:
-        """``J Y = F`` by the Krylov method, from a zero guess."""
-        ksp = self.ksp
-        if self._fresh:
-            ksp.setOperators(self.A, self.A)
-            ksp.getPC().setReusePreconditioner(False)
-            record.factorizations += 1
-            self._fresh = False
+    def _unchanged(self) -> bool:
+        """Whether the fingerprint of the matrix equals that of the last set-up (collective)."""
+        y = self.A.createVecLeft()
+        self.A.mult(self._probe, y)
+        same = self._fingerprint is not None and np.array_equal(y.getArray(),
+                                                                self._fingerprint.getArray())
+        same = self.comm.allreduce(bool(same), op=MPI.LAND)
+        if same:
+            y.destroy()
         else:
-            ksp.getPC().setReusePreconditioner(True)
+            if self._fingerprint is not None:
+                self._fingerprint.destroy()
+            self._fingerprint = y
+        return same
+
+    def solve(self, F: PETSc.Vec, Y: PETSc.Vec, record, states: npt.NDArray | None) -> bool:
+        """``J Y = F`` by the Krylov method, from a zero guess.
+
+        On failure the record's ``linear_failure`` says why (KSP reason, iterations, residual).
+        """
+        ksp, pc = self.ksp, self.ksp.getPC()
+        if self._fresh and not (self.reuse and self._unchanged()):
+            ksp.setOperators(self.A, self.A)
+            pc.setReusePreconditioner(False)
+            t0 = time.perf_counter()
+            ksp.setUp()
+            record.time_preconditioner += time.perf_counter() - t0
+            record.factorizations += 1
+        else:
+            pc.setReusePreconditioner(True)
+        self._fresh = False
         ksp.solve(F, Y)
-        record.linear_iterations += ksp.getIterationNumber()
-        return ksp.getConvergedReason() > 0
+        its = ksp.getIterationNumber()
+        record.linear_iterations += its
+        if ksp.getConvergedReason() > 0:
+            return True
+        record.linear_failure = failure_message(ksp, F)
+        return False
 
     def forget(self) -> None:
         """Set the preconditioner up again at the next solve."""
         self._fresh = True
+        if self._fingerprint is not None:
+            self._fingerprint.destroy()
+        self._fingerprint = None
 
     def destroy(self) -> None:
-        """Nothing of its own to free (the KSP belongs to the Newton)."""
+        """Free the fingerprint vectors and the near-nullspace."""
+        for obj in (self._probe, self._fingerprint, self.nullspace):
+            if obj is not None:
+                obj.destroy()
 
 
-def linear_strategy(ksp: PETSc.KSP, A: PETSc.Mat, prefix: str, *, reuse: bool,
-                    stale: bool) -> LinearStrategy:
-    """The strategy for the KSP as its options configured it (call with the options pushed)."""
+def linear_strategy(ksp: PETSc.KSP, A: PETSc.Mat, prefix: str, *, reuse: bool, stale: bool,
+                    modes: Callable[[], npt.NDArray[np.float64]] | None = None
+                    ) -> LinearStrategy:
+    """The strategy for the KSP as its options configured it (call with the options pushed).
+
+    Args:
+        ksp: The Newton's KSP, configured (``setFromOptions``).
+        A: The Jacobian matrix.
+        prefix: Options prefix of the Newton.
+        reuse: Reuse a factorization or preconditioner while the Jacobian is unchanged.
+        stale: Try stale-factorization GMRES (direct).
+        modes: Computes the rigid-body modes of a displacement-only Jacobian; called for a
+            Krylov KSP only, whose preconditioner may use them (GAMG).
+    """
     if is_direct(ksp):
         return DirectSolver(ksp, A, prefix, reuse=reuse, stale=stale)
-    return IterativeSolver(ksp, A)
+    return IterativeSolver(ksp, A, None if modes is None else modes(), reuse=reuse)

@@ -103,6 +103,8 @@ class NewtonRecord:
     residual_evaluations: int = 0
     time_assembly: float = 0.0
     time_linear: float = 0.0
+    time_preconditioner: float = 0.0
+    linear_failure: str = ""
 
     def as_dict(self) -> dict:
         """JSON-ready summary."""
@@ -151,6 +153,9 @@ class SemiSmoothNewton:
             contact law's :attr:`~poromech.forms.contact.ContactParameters.piecewise_affine`,
             with coefficients constant in time): an unchanged active set then reuses the
             assembled Jacobian.
+        modes: Computes the rigid-body modes of a displacement-only system
+            (:func:`~poromech.mechanics.linear.rigid_body_modes`); called when the options
+            configure a Krylov solve, whose matrix then carries them as near-nullspace.
 
     Attributes:
         A: The Jacobian matrix.
@@ -175,6 +180,7 @@ class SemiSmoothNewton:
         stale_factorization: bool = True,
         states: Callable[[], np.ndarray] | None = None,
         states_determine_jacobian: bool = False,
+        modes: Callable[[], np.ndarray] | None = None,
     ):
         self.F, self.J, self.u, self.bcs = list(F), [list(r) for r in J], list(unknowns), list(bcs)
         self.comm = self.u[0].function_space.mesh.comm
@@ -196,7 +202,8 @@ class SemiSmoothNewton:
         self._jacobian_states = None  # active set of the assembled Jacobian
         self.condensed = None
         self.prefix = prefix
-        self.snes, self.linear = self._create_snes(prefix, options or {}, stale_factorization)
+        self.snes, self.linear = self._create_snes(prefix, options or {}, stale_factorization,
+                                                   modes)
         self._step = self.snes.getPythonContext() if self._is_python() else None
         self.record = NewtonRecord()
 
@@ -213,8 +220,9 @@ class SemiSmoothNewton:
     def _is_python(self) -> bool:
         return self.snes.getType() == PETSc.SNES.Type.PYTHON
 
-    def _create_snes(self, prefix: str, options: dict,
-                     stale: bool) -> tuple[PETSc.SNES, LinearStrategy]:
+    def _create_snes(self, prefix: str, options: dict, stale: bool,
+                     modes: Callable[[], np.ndarray] | None
+                     ) -> tuple[PETSc.SNES, LinearStrategy]:
         snes = PETSc.SNES().create(self.comm)
         snes.setOptionsPrefix(prefix)
         merged = {**DEFAULT_OPTIONS, **options}
@@ -226,7 +234,7 @@ class SemiSmoothNewton:
             snes.setJacobian(self._jacobian, self.A, self.A)
             snes.setFromOptions()
             linear = linear_strategy(snes.getKSP(), self.A, prefix, reuse=self.reuse_jacobian,
-                                     stale=stale)
+                                     stale=stale, modes=modes)
         if snes.getType() == PETSc.SNES.Type.PYTHON:
             snes.setPythonContext(_NewtonStep(self))
         snes.setConvergenceTest(self._converged)

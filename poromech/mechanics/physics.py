@@ -15,8 +15,10 @@ from pathlib import Path
 import dolfinx_solver  # noqa: F401
 
 import numpy as np
+from mpi4py import MPI
 from petsc4py import PETSc
 
+from poromech.errors import ConfigError
 from poromech.io.checkpoint import (
     cell_dof_rows,
     face_dof_rows,
@@ -27,17 +29,19 @@ from poromech.io.checkpoint import (
 from poromech.io.output import FractureTable, displacement_mesh, fracture_mesh, owned_blocks
 from poromech.io.probes import open_probes
 from poromech.io.xdmf import XDMFSeries
-from poromech.mechanics.linear import is_direct
+from poromech.mechanics.linear import is_direct, iterative_options, rigid_body_modes
 from poromech.mechanics.model import MechanicsModel, PressureCoupling
 from poromech.mechanics.newton import NewtonRecord, SemiSmoothNewton
 from poromech.mechanics.predictor import StepPredictor
 from poromech.mesh.entities import fracture_segments
 from poromech.mesh.fractured import FracturedMesh
 from poromech.physics import Keyed, StepResult
+from poromech.scene.resources import mechanics_solver
 from poromech.scene.schema import Scene
 from poromech.timing import Timer
 
-__all__ = ["MechanicsPhysics", "formulation_options"]
+__all__ = ["MechanicsPhysics", "check_pieces", "floating_pieces", "formulation_options",
+           "linear_solver_options"]
 
 log = logging.getLogger("poromech")
 
@@ -49,6 +53,62 @@ WRITTEN_FACE_FIELDS_3D = ("jump_n", "jump_t", "jump_tx", "jump_ty", "jump_tz", "
 #: Face fields written to ``fractures.xdmf`` only: the fractions of the face in contact and
 #: sliding (they differ from 0 and 1 only where pointwise Nitsche switches inside a face).
 XDMF_ONLY_FACE_FIELDS = ("contact_fraction", "slip_fraction")
+
+
+def linear_solver_options(kind: str, formulation: str) -> dict:
+    """PETSc defaults of the linear solver ``kind`` (``direct``: the Newton's own, MUMPS).
+
+    ``iterative``: CG + GAMG for open fractures (a symmetric positive definite Jacobian), GMRES
+    + GAMG for Nitsche contact (:func:`~poromech.mechanics.linear.iterative_options`).
+    """
+    if kind == "direct":
+        return {}
+    return iterative_options(symmetric=formulation == "none")
+
+
+def floating_pieces(scene: Scene, fm: FracturedMesh) -> list[str]:
+    """The pieces of the cracked body that no displacement condition holds, described.
+
+    A piece (:attr:`~poromech.mesh.fractured.FracturedMesh.pieces`) is held when the
+    displacement conditions on the boundaries it touches fix every component somewhere, the
+    check the scene makes for the whole body (necessary, not sufficient, against rigid motion).
+    The rigid-body modes given to GAMG are global; on a cracked space the pieces do not share
+    dofs, so GAMG's aggregates never straddle a fracture and every piece's own rigid motions are
+    in its coarse space all the same.
+    """
+    names, d = fm.geometry.boundary_names, fm.msh.geometry.dim
+    out = []
+    for k, (cells, edges) in enumerate(fm.pieces):
+        fixed = [False] * d
+        touched = {names[e] for e in edges}
+        for bc in scene.boundary_conditions:
+            if bc.displacement is not None and bc.boundary in touched:
+                fixed = [f or c is not None for f, c in zip(fixed, bc.displacement, strict=True)]
+        if not all(fixed):
+            free = "".join(c for c, f in zip("xyz", fixed, strict=False) if not f)
+            where = ", ".join(sorted(touched)) or "no boundary"
+            out.append(f"piece {k + 1} of {len(fm.pieces)} ({cells} cells, on {where}) has no "
+                       f"displacement condition in {free}")
+    return out
+
+
+def check_pieces(scene: Scene, fm: FracturedMesh) -> None:
+    """Refuse a piece held by nothing (formulation none); warn of one held only by contact.
+
+    Raises:
+        ConfigError: Open fractures (``contact.formulation`` none) and a floating piece: its
+            rigid motions make the elastic operator singular.
+    """
+    floating = floating_pieces(scene, fm)
+    if not floating:
+        return
+    if scene.contact.formulation == "none":
+        raise ConfigError(f"scene key 'boundary_conditions': the fractures cut the body into "
+                          f"{len(fm.pieces)} pieces and {floating[0]}: with contact.formulation "
+                          "none nothing holds it (rigid-body motion); add a displacement "
+                          "condition on a boundary it touches")
+    for text in floating:
+        log.warning("%s: only contact holds it", text)
 
 
 def formulation_options(formulation: str) -> dict:
@@ -79,13 +139,14 @@ class MechanicsPhysics:
 
     counters = ("iterations", "face_iterations", "linear_iterations", "factorizations",
                 "stale_solves", "jacobian_reuses", "residual_evaluations", "time_assembly",
-                "time_linear")
+                "time_linear", "time_preconditioner")
     records_section = None
 
     def __init__(self, scene: Scene, fm: FracturedMesh, timer: Timer,
                  pressures: PressureCoupling | None = None):
         self.scene, self.timer, self.fm = scene, timer, fm
         self.writes_initial_state = False
+        check_pieces(scene, fm)
         singular = scene.contact.formulation == "mixed" and scene.degree == 1
         if singular:
             log.warning("mixed with P1 displacements is not inf-sup stable: multipliers are not "
@@ -96,16 +157,23 @@ class MechanicsPhysics:
             # the Jacobian is a function of the contact branches when the contact law is
             # piecewise affine and no other coefficient of it (E, ν) changes in time
             constant = not (material.young.depends_on_time or material.poisson.depends_on_time)
+            self.linear_solver = mechanics_solver(scene, model.dof_count())
+            options = linear_solver_options(self.linear_solver, model.params.formulation)
             self.solver = SemiSmoothNewton(
                 model.F, model.J, model.unknowns, model.bcs, prefix="mech_",
-                options={**formulation_options(model.params.formulation), **scene.solver.petsc},
+                options={**options, **formulation_options(model.params.formulation),
+                         **scene.solver.petsc},
                 line_search=scene.solver.line_search,
                 reuse_jacobian=scene.solver.reuse_jacobian,
                 # a stale factorization of a singular Jacobian is no preconditioner
                 stale_factorization=scene.solver.stale_factorization and not singular,
                 states=model.active_set if model.faces is not None else None,
                 states_determine_jacobian=constant and model.params.piecewise_affine,
+                modes=(lambda: rigid_body_modes(model.V)) if len(model.unknowns) == 1 else None,
             )
+        self._log_linear_solver()
+        self.linear_totals = {"krylov_iterations": 0, "preconditioner_setups": 0,
+                              "time_preconditioner": 0.0}
         condensed = self._condensed()
         if condensed is not None:
             self.solver.attach_condensation(condensed)
@@ -118,6 +186,17 @@ class MechanicsPhysics:
         self._series: dict[str, XDMFSeries] = {}
         self._table: FractureTable | None = None
         self._probes: list[tuple] = []
+
+    def _log_linear_solver(self) -> None:
+        """Say once which linear solver the mechanics runs, and why (rank 0 logs)."""
+        choice = self.scene.solver.linear_solver
+        ksp = self.solver.snes.getKSP()
+        why = (f"solver.linear_solver {choice}" if choice != "auto" else
+               f"auto: {self.fm.msh.topology.dim}D, {self.model.dof_count()} unknowns")
+        k = self.solver.linear.near_nullspace_size
+        modes = f", near-nullspace of {k} rigid-body modes" if k else ""
+        log.info("mechanics linear solver: %s (%s + %s%s; %s)", self.linear_solver,
+                 ksp.getType(), ksp.getPC().getType(), modes, why)
 
     def _condensed(self):
         """A :class:`~poromech.mechanics.condensed.CondensedContact` where it applies, else None."""
@@ -155,6 +234,10 @@ class MechanicsPhysics:
         }
         if self.model.beta_sm0 is not None:
             out["beta_sm_n"], out["beta_sm_t"] = self.model.beta_sm0
+        ksp = self.solver.snes.getKSP()
+        out["linear_solver"] = {"kind": self.linear_solver,
+                                "choice": self.scene.solver.linear_solver,
+                                "ksp_type": ksp.getType(), "pc_type": ksp.getPC().getType()}
         c = self.solver.condensed
         out["condensed"] = None if c is None else c.describe()
         if self.model.coercivity_ratio is not None:
@@ -181,6 +264,9 @@ class MechanicsPhysics:
         rec = self.solver.solve(min_iterations)
         self.timer.add("assembly", rec.time_assembly)
         self.timer.add("linear_solve", rec.time_linear)
+        self.linear_totals["krylov_iterations"] += rec.linear_iterations
+        self.linear_totals["preconditioner_setups"] += rec.factorizations
+        self.linear_totals["time_preconditioner"] += rec.time_preconditioner
         return rec
 
     # -- Physics interface -----------------------------------------------------------------
@@ -194,8 +280,9 @@ class MechanicsPhysics:
         rec = self.solve_contact()
         message = ""
         if not rec.converged:
+            linear = f" ({rec.linear_failure})" if rec.linear_failure else ""
             message = (f"Newton did not converge at t = {t:g} s: {rec.reason} after "
-                       f"{rec.iterations} iterations; residual history "
+                       f"{rec.iterations} iterations{linear}; residual history "
                        + ", ".join(f"{r:.3e}" for r in rec.residuals))
         return StepResult(rec.converged, rec.as_dict(), message, rec.reason, rec.residuals)
 
@@ -219,10 +306,15 @@ class MechanicsPhysics:
         face = f" (+{rec['face_iterations']} face Newton)" if rec.get("face_iterations") else ""
         # without contact conditions the problem is linear: one solve, no Newton to speak of
         what = "Newton it" if self.model.params.active else "linear solve"
+        if is_direct(self.solver.snes.getKSP()):
+            work = f"{rec['factorizations']} factorizations"
+        else:
+            work = (f"{rec['factorizations']} preconditioner set-ups "
+                    f"({rec['time_preconditioner']:.2f} s), "
+                    f"{rec['linear_iterations']} Krylov iterations")
         return (f"step {k + 1}/{n} t={t:g} s: {rec['reason']} in {rec['iterations']} {what}"
                 f"{face} "
-                f"(|F| {res[0]:.2e} -> {res[-1]:.2e}), active-set changes {changes}, "
-                f"{rec['factorizations']} factorizations")
+                f"(|F| {res[0]:.2e} -> {res[-1]:.2e}), active-set changes {changes}, {work}")
 
     # -- output ------------------------------------------------------------------------------
     def open_output(self, outdir: Path, resume_until: float | None = None,
@@ -357,7 +449,11 @@ class MechanicsPhysics:
             saved[:] = f.x.array
 
     def finish(self, summary: dict, records: list[dict]) -> None:
-        """The work of the condensed solve, if any."""
+        """The linear solver's work over every solve, and the condensed solve's, if any."""
+        totals = dict(self.linear_totals)
+        totals["time_preconditioner"] = self.fm.comm.allreduce(totals["time_preconditioner"],
+                                                               op=MPI.MAX)
+        summary.setdefault("linear_solver", {}).update(totals)
         if self.solver.condensed is not None:
             summary["condensed"] = self.solver.condensed.describe()
 

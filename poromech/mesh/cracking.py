@@ -30,6 +30,7 @@ from scipy.sparse.csgraph import connected_components
 
 __all__ = [
     "bisect_edges",
+    "body_pieces",
     "crack_vertices",
     "deficient_edges",
     "edge_star_copies",
@@ -117,6 +118,48 @@ def _open_facet_pairs(cells: IntArray, fracture_facets: IntArray):
     c1, f1 = np.divmod(first, nv)
     c2, f2 = np.divmod(second, nv)
     return c1, f1, c2, f2
+
+
+def body_pieces(cells: npt.ArrayLike, fracture_facets: npt.ArrayLike,
+                boundary_facets: npt.ArrayLike, boundary_edge: npt.ArrayLike
+                ) -> tuple[tuple[int, tuple[int, ...]], ...]:
+    """The pieces the fractures cut the body into, and the domain boundary each one touches.
+
+    Two cells belong to one piece when a chain of cells sharing non-fracture facets joins them:
+    the components of the cracked body, each of which moves rigidly on its own when nothing
+    holds it (no displacement condition on its boundary, no contact).
+
+    Args:
+        cells: Cell nodes, ``(num_cells, d + 1)``.
+        fracture_facets: Nodes of the fracture facets.
+        boundary_facets: Nodes of the domain boundary facets.
+        boundary_edge: Domain edge (2D) or box face (3D) of each boundary facet.
+
+    Returns:
+        Per piece, in the order of its first cell: its number of cells and the sorted domain
+        edges (faces) its boundary facets lie on.
+    """
+    cells = np.asarray(cells, dtype=np.int64)
+    nc, nv = cells.shape
+    c1, _, c2, _ = _open_facet_pairs(cells, np.asarray(fracture_facets))
+    graph = coo_matrix((np.ones(len(c1), dtype=np.int8), (c1, c2)), shape=(nc, nc))
+    npieces, label = connected_components(graph, directed=False)
+    first = np.full(npieces, nc, dtype=np.int64)
+    np.minimum.at(first, label, np.arange(nc))
+    rank = np.empty(npieces, dtype=np.int64)
+    rank[np.argsort(first)] = np.arange(npieces)
+    label = rank[label]
+    # the cell of each boundary facet: its row among the sorted facet rows of all cells
+    rows = np.sort(cells[:, facet_table(nv)], axis=2).reshape(-1, nv - 1)
+    brows = np.sort(np.asarray(boundary_facets, dtype=np.int64).reshape(-1, nv - 1), axis=1)
+    ids, _ = unique_rows(np.concatenate([rows, brows]))
+    where = np.full(ids.max() + 1 if len(ids) else 0, -1, dtype=np.int64)
+    where[ids[: len(rows)]] = np.arange(len(rows)) // nv  # a boundary facet has one cell
+    bcell = where[ids[len(rows):]]
+    edges = np.asarray(boundary_edge, dtype=np.int64)
+    counts = np.bincount(label, minlength=npieces)
+    return tuple((int(counts[k]), tuple(int(e) for e in np.unique(edges[label[bcell] == k])))
+                 for k in range(npieces))
 
 
 def _facet_subentities(nv: int, dim: int) -> npt.NDArray[np.int32]:

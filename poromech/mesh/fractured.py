@@ -29,7 +29,7 @@ from mpi4py import MPI
 
 from poromech.geometry.box import BoxGeometry
 from poromech.geometry.plane import PlaneGeometry
-from poromech.mesh.cracking import crack_vertices, facet_table
+from poromech.mesh.cracking import body_pieces, crack_vertices, facet_table
 from poromech.mesh.generate import MeshArrays
 from poromech.parallel import agree
 
@@ -122,6 +122,9 @@ class FracturedMesh:
         boundary_edge: Domain polygon edge (2D) or box face (3D) of each boundary facet, an
             index into ``geometry.boundary_names``.
         num_fracture_faces: Global number of fracture faces.
+        pieces: The pieces the fractures cut the body into (the same on every rank): per piece
+            its number of cells and the domain edges (faces) it touches
+            (:func:`~poromech.mesh.cracking.body_pieces`).
     """
 
     msh: dolfinx.mesh.Mesh
@@ -133,6 +136,7 @@ class FracturedMesh:
     boundary_facets: npt.NDArray[np.int32]
     boundary_edge: npt.NDArray[np.int32]
     num_fracture_faces: int
+    pieces: tuple[tuple[int, tuple[int, ...]], ...] = ()
 
     @property
     def comm(self) -> MPI.Comm:
@@ -266,8 +270,11 @@ def create_fractured_mesh(
         cracked_rows, _ = crack_vertices(arrays.cells, arrays.fracture_facets, len(arrays.x))
         face_data = (arrays.fracture_id, arrays.fracture_segment, arrays.fracture_s)
         shape = (arrays.cells.shape[1], arrays.x.shape[1])
+        pieces = body_pieces(arrays.cells, arrays.fracture_facets, arrays.boundary_facets,
+                             arrays.boundary_edge)
     else:
-        cracked_rows, face_data, shape = None, None, None
+        cracked_rows, face_data, shape, pieces = None, None, None, None
+    pieces = comm.bcast(pieces, root=0)
     fid, fseg, fs = comm.bcast(face_data, root=0)
     nv, gdim = comm.bcast(shape, root=0)  # vertices per cell, coordinates per point
     if owner is not None or comm.size > 1:
@@ -316,7 +323,7 @@ def create_fractured_mesh(
     return FracturedMesh(
         msh, geometry, cracked, cracked_cells, faces, facets_all,
         bfacets[own].astype(np.int32), bedge[own].astype(np.int32),
-        int(len(fid)),
+        int(len(fid)), pieces,
     )
 
 

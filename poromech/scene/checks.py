@@ -15,6 +15,7 @@ import numpy as np
 from poromech.errors import ConfigError
 from poromech.geometry.plane import PlaneGeometry, segment_meets_polygon
 from poromech.scene.builder import field_meta, format_value
+from poromech.scene.resources import ITERATIVE_FORMULATIONS
 from poromech.scene.schema import Contact, Flow, FractureFlow, Material, Scene
 from poromech.scene.values import (
     check_expression,
@@ -100,6 +101,13 @@ def _check_mechanics(scene: Scene, geo: PlaneGeometry) -> None:
             "(rigid body motion); add a displacement condition"
         )
     _check_mechanics_data(scene, geo, times)
+    if (scene.solver.linear_solver == "iterative"
+            and scene.contact.formulation not in ITERATIVE_FORMULATIONS):
+        raise ConfigError(
+            f"scene key 'solver.linear_solver' = 'iterative' needs a system of displacements "
+            f"only (contact.formulation {' or '.join(ITERATIVE_FORMULATIONS)}): "
+            f"{scene.contact.formulation} adds multipliers or face averages, a saddle-point "
+            "system for a direct solve (direct or auto)")
 
 
 def _check_mechanics_data(scene: Scene, geo: PlaneGeometry, times) -> None:

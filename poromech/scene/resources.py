@@ -18,6 +18,13 @@ killed. The estimates:
   (MUMPS) solve, ``DIRECT_BYTES_LOG · log₂ n`` bytes (nested-dissection fill of 2D problems
   grows as ``n log n``), or :data:`ITERATIVE_BYTES` for the flow's CG + GAMG. Fitted to
   measured peak memory of the six-fracture scene at refinements 0-3 (P1, P2 and flow).
+  In 3D rank 0 first meshes the whole body (gmsh, the mesh arrays, the cracked topology:
+  :data:`MESH_BYTES_PER_CELL_3D`) and then holds its share of the solve (MUMPS:
+  :data:`DIRECT_BYTES_3D` ``n^{4/3}``; CG + GAMG: :data:`ITERATIVE_BYTES_3D` ``n``), so the
+  peak summed over ``R`` ranks is ``R·BASE + max(mesh, solve/R) + solve·(R-1)/R``. Fitted to
+  the peak memory (max RSS summed over ranks) of the P2 penny crack from 16k to 1M unknowns,
+  on 1 and 2 ranks, direct and iterative: every estimate within a factor 1.2 of the measurement
+  (docs/mechanics3d/solvers.md).
 
 The limit is the memory the machine has available (``MemAvailable``), or the cgroup limit or the
 address-space limit (``ulimit -v``) when lower, summed over the nodes of the run.
@@ -37,14 +44,19 @@ from mpi4py import MPI
 
 from poromech.geometry.box import BoxGeometry
 from poromech.geometry.plane import PlaneGeometry
+from poromech.scene.geometry import scene_dimension
+from poromech.scene.schema import ITERATIVE_FROM_UNKNOWNS_3D
 
 __all__ = [
+    "ITERATIVE_FORMULATIONS",
+    "ITERATIVE_FROM_UNKNOWNS_3D",
     "ResourceError",
     "RunEstimate",
     "available_memory",
     "check_resources",
     "estimate_cells",
     "estimate_run",
+    "mechanics_solver",
 ]
 
 log = logging.getLogger("poromech")
@@ -60,10 +72,14 @@ CELLS_PER_VOLUME = 7.0
 #: vertices + cells); P1 tetrahedra 3 × vertices ≈ 0.55.
 UNKNOWNS_PER_CELL = {(2, 1): 1.0, (2, 2): 4.0, (3, 1): 0.55, (3, 2): 4.5}
 #: Bytes per ``n^{4/3}`` of a direct solve in 3D (nested-dissection fill grows as ``n^{4/3}``;
-#: MUMPS on a P2 penny crack: 2.2 GB at 83k and 7.9 GB at 216k unknowns).
-DIRECT_BYTES_3D = 560.0
-#: Bytes per unknown of an iterative (CG + GAMG) elastic solve in 3D (matrix, hierarchy, vectors).
-ITERATIVE_BYTES_3D = 2500.0
+#: MUMPS on the P2 penny crack: 1.7 GB at 79k and 5.1 GB at 192k unknowns, peak of the process).
+DIRECT_BYTES_3D = 380.0
+#: Bytes per unknown of an iterative (CG + GAMG) elastic solve in 3D (matrix, hierarchy, vectors;
+#: the P2 penny crack: 3.2 GB at 1.0M unknowns on 1 rank, 5.0 GB summed over 2 ranks).
+ITERATIVE_BYTES_3D = 2400.0
+#: Bytes per (estimated) tetrahedron on rank 0 while it meshes the body: gmsh, the mesh arrays,
+#: the cracked topology and the distribution.
+MESH_BYTES_PER_CELL_3D = 6700.0
 #: Memory of one rank before any mesh (interpreter, PETSc, MPI, compiled forms), bytes.
 BASE_BYTES = 250e6
 #: Bytes per unknown and per ``log₂(unknowns)`` of a direct solve (matrix, factors, vectors).
@@ -189,18 +205,26 @@ def estimate_cells(geo: PlaneGeometry, size: float, fracture_size: float, tip_si
     return CELLS_PER_AREA * density * 4.0**refinement
 
 
-#: Above this many unknowns ``solver.linear_solver: auto`` solves a 3D elastic problem with
-#: CG + GAMG; 2D problems always with MUMPS (fast there, and the condensed mixed solve needs it).
-ITERATIVE_FROM_UNKNOWNS_3D = 20_000
+#: Contact formulations whose Jacobian has displacement unknowns only, the systems that GAMG
+#: with the rigid-body modes preconditions; the others add multipliers or face averages
+#: (saddle-point systems) and are solved directly.
+ITERATIVE_FORMULATIONS = ("none", "nitsche")
 
 
 def mechanics_solver(scene, unknowns: float) -> str:
-    """``direct`` or ``iterative``: ``solver.linear_solver``, or chosen by dimension and size."""
+    """``direct`` or ``iterative``: ``solver.linear_solver``, or chosen by dimension and size.
+
+    ``auto`` is iterative for a 3D displacement-only system (:data:`ITERATIVE_FORMULATIONS`) of
+    more than :data:`ITERATIVE_FROM_UNKNOWNS_3D` unknowns, direct otherwise (every 2D scene).
+    Called before meshing with the estimated unknowns (memory) and after it with the actual
+    ones (the solver that runs).
+    """
     choice = scene.solver.linear_solver
     if choice != "auto":
         return choice
-    dim = 3 if scene.geometry.domain.box is not None else 2
-    return "iterative" if dim == 3 and unknowns > ITERATIVE_FROM_UNKNOWNS_3D else "direct"
+    iterative = (scene_dimension(scene) == 3 and scene.contact.formulation in ITERATIVE_FORMULATIONS
+                 and unknowns > ITERATIVE_FROM_UNKNOWNS_3D)
+    return "iterative" if iterative else "direct"
 
 
 def _direct_bytes(n: float) -> float:
@@ -213,22 +237,31 @@ def estimate_run(scene, geo: PlaneGeometry, ranks: int = 1) -> RunEstimate:
     fracture = m.fracture_size or m.size
     cells = estimate_cells(geo, m.size, fracture, m.tip_size or fracture,
                            m.transition or 4 * m.size, m.refinement)
+    if geo.dim == 3:
+        return _estimate_3d(scene, cells, ranks)
     memory = ranks * BASE_BYTES + MESH_BYTES_PER_CELL * cells
     unknowns = 0.0
     if scene.physics in ("mechanics", "poromechanics"):
         mech = UNKNOWNS_PER_CELL[(geo.dim, scene.degree)] * cells
         unknowns += mech
-        if geo.dim == 2:
-            memory += _direct_bytes(mech)
-        elif mechanics_solver(scene, mech) == "direct":
-            memory += DIRECT_BYTES_3D * mech ** (4 / 3)
-        else:
-            memory += ITERATIVE_BYTES_3D * mech
+        memory += _direct_bytes(mech)
     if scene.physics in ("flow", "poromechanics") and scene.flow is not None:
         flow = 2.5 * cells
         unknowns += flow
         direct = scene.flow.linear_solver == "direct"
         memory += _direct_bytes(flow) if direct else ITERATIVE_BYTES * flow
+    return RunEstimate(cells, unknowns, memory)
+
+
+def _estimate_3d(scene, cells: float, ranks: int) -> RunEstimate:
+    """3D (mechanics only): rank 0's meshing peak, or its share of the solve, plus the others'."""
+    unknowns = UNKNOWNS_PER_CELL[(3, scene.degree)] * cells
+    if mechanics_solver(scene, unknowns) == "direct":
+        solve = DIRECT_BYTES_3D * unknowns ** (4 / 3)
+    else:
+        solve = ITERATIVE_BYTES_3D * unknowns
+    memory = (ranks * BASE_BYTES + max(MESH_BYTES_PER_CELL_3D * cells, solve / ranks)
+              + solve * (ranks - 1) / ranks)
     return RunEstimate(cells, unknowns, memory)
 
 

@@ -305,16 +305,23 @@ class TimeSpec:
         return float(self.times[-1]) if self.times else float(self.final)
 
 
+#: ``solver.linear_solver: auto`` solves a 3D displacement-only system of more unknowns than
+#: this with CG + GAMG (:mod:`poromech.scene.resources` has the measurements behind it).
+ITERATIVE_FROM_UNKNOWNS_3D = 20_000
+
+
 @dataclass(frozen=True)
 class Solver:
     """Semi-smooth Newton (mechanics) and its linear solver."""
 
     linear_solver: Literal["auto", "direct", "iterative"] = field(
         default="auto",
-        metadata=doc("linear solver of the elastic problem: direct (MUMPS), iterative (CG + "
-                     "GAMG with the rigid-body modes of the cracked space as near-nullspace), "
-                     "or auto: direct in 2D, iterative in 3D above 20,000 estimated unknowns; "
-                     "solver.petsc options change either"),
+        metadata=doc("linear solver of the mechanics: direct (MUMPS LU), iterative (CG + GAMG "
+                     "with the rigid-body modes of the cracked space as near-nullspace; GMRES "
+                     "for Nitsche contact; not for the formulations with multipliers or face "
+                     "averages), or auto: direct in 2D, iterative in 3D above "
+                     f"{ITERATIVE_FROM_UNKNOWNS_3D:,} unknowns (counted after meshing); "
+                     "solver.petsc options override either's defaults"),
     )
     line_search: Literal["contact", "basic", "bt", "l2", "cp"] = field(
         default="contact",
