@@ -10,6 +10,16 @@ boundary reproduces the infinite-plane solution and the error is pure discretiza
   with Coulomb friction ``F = tan φ`` (Phan et al. 2003; Franceschini et al. 2020): the crack is
   closed with normal traction ``t_N = -σ sin²ψ`` and, when ``cos ψ - F sin ψ > 0``, slips by
   ``g_T(ξ) = 4 (1 - ν²)/E · σ sin ψ (cos ψ - F sin ψ) · sqrt(b² - (b - ξ)²)``, ``ξ ∈ [0, 2b]``.
+
+Two 3D solutions for a penny-shaped crack of radius ``a`` in an infinite solid (jumps only):
+
+* Sneddon (1946): opened by a uniform pressure ``p``, ``w(r) = 8 (1 - ν²) p / (π E) √(a² - r²)``.
+* Segedin (1968): loaded by a uniform remote shear ``τ`` on its plane (and closed by a normal
+  compression, which does not interact with the shear: the crack is flat and the solid
+  isotropic), slips parallel to ``τ`` by ``16 (1 - ν²) τ / (π (2 - ν) E) √(a² - r²)``, with no
+  opening. A uniform friction traction ``b`` (Tresca ``s``, or Coulomb ``F σ`` under the
+  uniform compression ``σ``) acts against the slip: the slip is that of ``τ - b`` (0 when
+  ``τ <= b``, the crack sticks).
 """
 
 from __future__ import annotations
@@ -19,6 +29,7 @@ import numpy.typing as npt
 
 __all__ = [
     "penny_opening",
+    "penny_shear_slip",
     "inclined_crack_displacement",
     "inclined_crack_frame",
     "inclined_crack_slip",
@@ -76,6 +87,18 @@ def penny_opening(r, a: float, p: float, E: float, nu: float):
     """
     r = np.asarray(r, dtype=np.float64)
     return 8 * (1 - nu**2) * p / (np.pi * E) * np.sqrt(np.clip(a**2 - r**2, 0.0, None))
+
+
+def penny_shear_slip(r, a: float, tau: float, E: float, nu: float):
+    """Slip (m) at radius ``r`` of a penny crack of radius ``a`` under remote shear ``tau`` (Pa).
+
+    ``16 (1 - ν²) τ / (π (2 - ν) E) √(a² - r²)`` (Segedin 1968; Kassir and Sih 1975, eq. for the
+    shear-loaded penny crack), parallel to the shear traction on the crack plane; ``tau`` (Pa)
+    is the shear that the slip releases (the remote shear minus a uniform friction traction).
+    """
+    r = np.asarray(r, dtype=np.float64)
+    return (16 * (1 - nu**2) * tau / (np.pi * (2 - nu) * E)
+            * np.sqrt(np.clip(a**2 - r**2, 0.0, None)))
 
 
 def sneddon_displacement(x, y, a: float, p: float, E: float, nu: float):

@@ -3,10 +3,10 @@
 With θ = 1 the open branch of eq. (8) leaves ``-∫_Γ (1/β_n) T_n(u) T_n(v) + (1/β_τ) T_τ(u) T_τ(v)``
 in the bilinear form, and the contact branch ``a - 2 T·[[v]] + β [[v]]²`` is bounded below by the
 same ``a - T²/β``. The Jacobian is therefore positive definite on every branch when, for all
-``v``, ``a(v, v) > Σ_F h_F ∫_F T_n(v)²/β_n⁰ + T_τ(v)²/β_τ⁰`` (``β = β⁰/h_F``). A sufficient,
+``v``, ``a(v, v) > Σ_F h_F ∫_F T_n(v)²/β_n⁰ + |T_τ(v)|²/β_τ⁰`` (``β = β⁰/h_F``). A sufficient,
 computable condition is that every cell ``K`` next to the fractures satisfies it alone:
 
-    ρ_K = max_{v ∈ P_k(K)²} Σ_{F ⊂ ∂K ∩ Γ} w_F h_F ∫_F (T_n(v)²/β_n⁰ + T_τ(v)²/β_τ⁰) / ∫_K σ(v):ε(v)
+    ρ_K = max_{v ∈ P_k(K)^d} Σ_{F ⊂ ∂K ∩ Γ} w_F h_F ∫_F (T_n(v)²/β_n⁰ + |T_τ(v)|²/β_τ⁰) / a_K(v, v)
 
 and ``ρ = max_K ρ_K < 1`` (``w_F = 1`` for the ``+`` cell when the traction is taken on the
 ``+`` side, ``1/2`` for each side for the mean traction). ``ρ`` is proportional to ``E/β⁰``, and
@@ -39,15 +39,18 @@ def _traction_form(u, v, n, h, young, poisson, side: str, beta_n0: float,
 
     No tangential term when ``beta_t0`` is None (frictionless).
     """
-    tau = tangent(n)
+    planar = n.ufl_shape == (2,)
+    tau = tangent(n) if planar else None
     sides = (("+", 1.0),) if side == "plus" else (("+", 0.5), ("-", 0.5))
     terms = []
     for s, w in sides:
         tu = ufl.dot(sigma(u, young, poisson)(s), n)
         tv = ufl.dot(sigma(v, young, poisson)(s), n)
         term = ufl.dot(tu, n) * ufl.dot(tv, n) / beta_n0
-        if beta_t0 is not None:
+        if beta_t0 is not None and planar:
             term += ufl.dot(tu, tau) * ufl.dot(tv, tau) / beta_t0
+        elif beta_t0 is not None:  # 3D: T_τ(u)·T_τ(v), the tangential part in any frame
+            term += ufl.dot(tu - ufl.dot(tu, n) * n, tv) / beta_t0
         terms.append(w * term)
     return h * sum(terms[1:], terms[0])
 

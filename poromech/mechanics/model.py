@@ -29,7 +29,7 @@ from poromech.forms.elasticity import (
     epsilon,
     initial_stress_form,
 )
-from poromech.forms.fracture import FractureKinematics, normal_jump, slip
+from poromech.forms.fracture import FractureKinematics, magnitude, normal_jump, slip
 from poromech.mechanics.coercivity import symmetric_nitsche_ratio
 from poromech.mesh.fractured import (
     FRACTURE_TAG,
@@ -54,9 +54,11 @@ FACE_FIELDS = ("jump_n", "jump_t", "traction_n", "traction_t", "friction_bound",
 #: The assembled face means in 3D: the tangential jump and traction as vectors in global
 #: coordinates (:meth:`MechanicsModel.face_fields` adds their magnitudes ``jump_t``,
 #: ``traction_t``).
+#: ``traction_t_mean`` is the face mean of ``|T_τ|``, which the states compare with the friction
+#: bound (the magnitude of the mean vector is smaller where the direction turns on a face).
 FACE_FIELDS_3D = ("jump_n", "jump_tx", "jump_ty", "jump_tz", "traction_n", "traction_tx",
                   "traction_ty", "traction_tz", "friction_bound", "contact_fraction",
-                  "slip_fraction")
+                  "slip_fraction", "traction_t_mean")
 #: Contact states written to the output, by code (see :meth:`MechanicsModel.states`).
 STATE_NAMES = ("open", "stick", "slip")
 #: Relative tolerance of "on the friction bound": a closed face slips when
@@ -619,11 +621,12 @@ class MechanicsModel:
             values = (jn, jt, tn, zero if tt is None else tt, *rest)
         else:  # tangential vectors in global coordinates: Σ_k (frame component k) τ_k
             def global_vector(comps):
-                if comps is None:
+                if comps is None or comps.ufl_shape == ():  # no tangential terms (frictionless)
                     return (zero,) * 3
                 vec = sum(comps[k] * t for k, t in enumerate(fk.frame))
                 return tuple(vec[i] for i in range(3))
-            values = (jn, *global_vector(jt), tn, *global_vector(tt), *rest)
+            tt_mean = zero if tt is None or tt.ufl_shape == () else magnitude(tt)
+            values = (jn, *global_vector(jt), tn, *global_vector(tt), *rest, tt_mean)
         dG = cforms.contact_measure(c, self.dG)
         area = ufl.FacetArea(self.fm.msh)("+")  # |σ|: the face means are ∫ val / |σ|
         em = self.entity_maps or None
@@ -642,8 +645,14 @@ class MechanicsModel:
         """
         c = self.params
         k = c.quadrature_degree // 2 if cforms.pointwise(c) else 0
-        element = basix.ufl.element("DG", self.submesh.topology.cell_name(), k,
-                                    lagrange_variant=basix.LagrangeVariant.gl_warped)
+        cell = self.submesh.topology.cell_name()
+        if k > 0 and cell != "interval":
+            # triangles: no Lagrange nodes at the Gauss points; one dof per quadrature point
+            element = basix.ufl.quadrature_element(cell, value_shape=(),
+                                                   degree=c.quadrature_degree)
+        else:
+            element = basix.ufl.element("DG", cell, k,
+                                        lagrange_variant=basix.LagrangeVariant.gl_warped)
         self._points = fem.Function(fem.functionspace(self.submesh, element), name="active_set")
         r = ufl.TestFunction(self._points.function_space)("+")
         em = self.entity_maps or None
@@ -749,10 +758,13 @@ class MechanicsModel:
         0 ``open``: ``traction_n = 0`` (no compressive contact traction anywhere on the face);
         1 ``stick``: ``traction_n < 0`` and ``|traction_t|`` below the friction bound;
         2 ``slip``: ``traction_n < 0`` and ``|traction_t| >= (1 - SLIP_TOLERANCE) S`` with ``S``
-        the face mean of the bound (``F |traction_n|`` for Coulomb, ``s`` for Tresca, 0 without
+        the face mean of the bound (in 3D ``|traction_t|`` is the face mean of ``|T_τ|``,
+        ``traction_t_mean``) (``F |traction_n|`` for Coulomb, ``s`` for Tresca, 0 without
         friction: a closed frictionless face slips).
         """
-        tn, tt, bound = values["traction_n"], values["traction_t"], values["friction_bound"]
+        tn, bound = values["traction_n"], values["friction_bound"]
+        # 3D: the face mean of |T_τ| (|mean T_τ| is smaller where the direction turns)
+        tt = values["traction_t_mean"] if "traction_t_mean" in values else values["traction_t"]
         sliding = np.abs(tt) >= (1.0 - SLIP_TOLERANCE) * bound
         return np.where(tn < 0.0, np.where(sliding, 2, 1), 0).astype(np.int8)
 

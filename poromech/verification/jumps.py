@@ -19,7 +19,8 @@ from mpi4py import MPI
 from poromech.mesh.fractured import FracturedMesh
 
 __all__ = ["FaceQuadrature", "exact_jump", "face_quadrature", "jump_errors", "jump_values",
-           "penny_jump", "sneddon_jump"]
+           "friction_bound", "penny_jump", "penny_shear_jump", "remote_stress",
+           "sneddon_jump"]
 
 
 class FaceQuadrature:
@@ -144,6 +145,55 @@ def penny_jump(a: float, p: float, E: float, nu: float, center=(0.0, 0.0, 0.0)):
     return exact
 
 
+def remote_stress(tau: float, phi: float, sigma: float) -> npt.NDArray[np.float64]:
+    """Remote stress (Pa) of the sheared penny.
+
+    Shear ``τ`` along ``(cos φ, sin φ, 0)`` on the plane ``z = 0`` and normal stress
+    ``σ_zz = -σ`` (compression for ``σ > 0``).
+    """
+    s = np.zeros((3, 3))
+    s[0, 2] = s[2, 0] = tau * np.cos(phi)
+    s[1, 2] = s[2, 1] = tau * np.sin(phi)
+    s[2, 2] = -sigma
+    return s
+
+
+def penny_shear_jump(a: float, tau: float, phi: float, sigma: float, E: float, nu: float,
+                     bound: float = 0.0, center=(0.0, 0.0, 0.0)):
+    """Exact jump of a penny crack in the plane ``z = 0`` under remote shear (Segedin 1968).
+
+    The crack is closed (``σ > 0``) and slips against a uniform friction traction ``bound``
+    (Pa; 0 frictionless, ``s`` Tresca, ``F σ`` Coulomb) along the remote shear traction
+    ``t_τ = (σ⁰ n⁺)_τ`` on it: ``[[u]] = -g(r) t_τ/|t_τ|``, ``g`` of
+    :func:`poromech.analytic.penny_shear_slip` with the shear ``τ - bound`` (the ``+`` side is
+    the one ``n⁺`` points out of, which moves against ``t_τ``); 0 when ``τ <= bound``.
+    """
+    from poromech.analytic import penny_shear_slip
+
+    c = np.asarray(center, dtype=np.float64)
+    stress = remote_stress(tau, phi, sigma)
+
+    def exact(points, normals):
+        rel = points - c
+        r = np.linalg.norm(rel - np.einsum("ij,ij->i", rel, normals)[:, None] * normals, axis=1)
+        t = normals @ stress  # σ⁰ n⁺ (σ⁰ is symmetric)
+        t -= np.einsum("ij,ij->i", t, normals)[:, None] * normals
+        direction = t / np.linalg.norm(t, axis=1)[:, None]
+        return -penny_shear_slip(r, a, max(tau - bound, 0.0), E, nu)[:, None] * direction
+
+    return exact
+
+
+def friction_bound(scene, sigma: float) -> float:
+    """Uniform friction traction (Pa) of a crack under normal compression ``sigma`` (Pa)."""
+    c = scene.contact
+    if c.friction == "coulomb":
+        return c.friction_coefficient * sigma
+    if c.friction == "tresca":
+        return c.slip_bound.value()
+    return 0.0
+
+
 def inclined_crack_jump(b: float, psi: float, sigma: float, F: float, E: float, nu: float):
     """Exact jump of the inclined frictional crack, from the slip field on both faces.
 
@@ -161,10 +211,17 @@ def inclined_crack_jump(b: float, psi: float, sigma: float, F: float, E: float, 
 
 
 def exact_jump(scene) -> Callable:
-    """The exact jump of a verification scene: ``sneddon*``, ``penny*``, ``inclined_crack*``."""
+    """The exact jump of a verification scene.
+
+    ``sneddon*``, ``penny_shear*`` (the bound of its friction law), ``penny*``,
+    ``inclined_crack*``.
+    """
     prm = scene.parameters
     if scene.name.startswith("sneddon"):
         return sneddon_jump(prm["a"], prm["p"], prm["E"], prm["nu"])
+    if scene.name.startswith("penny_shear"):
+        return penny_shear_jump(prm["a"], prm["tau"], prm["phi"], prm["sigma"], prm["E"],
+                                prm["nu"], friction_bound(scene, prm["sigma"]))
     if scene.name.startswith("penny"):
         return penny_jump(prm["a"], prm["p"], prm["E"], prm["nu"])
     if scene.name.startswith("inclined_crack"):

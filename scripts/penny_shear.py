@@ -1,0 +1,254 @@
+"""A penny crack in frictional contact under remote shear (Segedin): slip error, Newton, time.
+
+Scene: ``configs/penny_shear.yaml`` (a disc of radius a = 1 m in the plane z = 0, remote shear
+τ = 1 MPa along (cos 30°, sin 30°, 0) and compression σ = 2 MPa across it, the uniform far field
+imposed on a box of half-width 5a, E = 10 GPa, ν = 0.25), meshed with one size family scaled
+by ``s`` (``mesh.size = 2 s``, ``mesh.fracture_size = 0.2 s``, ``mesh.tip_size = 0.05 s``, the
+family of ``scripts/penny_convergence.py``). The crack is closed and, frictionless, slips
+parallel to τ by ``16 (1 - ν²) τ / (π (2 - ν) E) √(a² - r²)`` in an infinite solid
+(``poromech.analytic.penny_shear_slip``). Columns:
+
+* ``l2``: relative L² error of the jump vector over the disc (against the exact slip's norm);
+  ``l2_n``: of its normal component (the exact opening is 0); ``transverse``: L² norm of the
+  computed slip across τ (in the crack plane, perpendicular to τ), relative to the exact slip;
+  ``centre``: computed/exact slip at the face point nearest the centre, minus 1.
+* ``newton``: Newton iterations; ``krylov``: Krylov iterations summed over them (0 for MUMPS);
+  ``time_total``: wall seconds of the whole case in its process (mesh, set-up, solve);
+  ``load``: the 1-minute load average when the case started (2 shared cores: wall times are
+  upper bounds); ``states``: the active-set codes found at the contact points (1 closed,
+  0 open, 3 closed and slipping).
+
+Cases: ``nitsche`` θ = -1 and ``mean_nitsche`` (θ = -1), frictionless, P1 and P2; ``nitsche``
+θ = 0 and θ = 1 on the P2 levels; Coulomb with F = 0.25 (the crack slips under τ - Fσ = 0.5
+MPa: half the frictionless slip) with ``nitsche`` θ = -1, P2; the box effect (half-width 10a
+instead of 5a) on one P2 mesh.
+
+Run (about 12 minutes on 2 cores; every case in its own process)::
+
+    python scripts/penny_shear.py            # -> docs/mechanics3d/penny_shear.{csv,md,png}
+    python scripts/penny_shear.py --quick    # the two coarsest levels only
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import datetime
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+OUT = ROOT / "docs" / "mechanics3d"
+SCENE = ROOT / "configs" / "penny_shear.yaml"
+#: Mesh scale factors, coarse to fine, per degree.
+SCALES = {1: (1.4, 1.0, 0.7, 0.5), 2: (1.4, 1.0, 0.7, 0.5)}
+#: mean_nitsche adds face averages: a saddle-point system for MUMPS, kept to smaller sizes.
+MEAN_SCALES = {1: (1.4, 1.0, 0.7, 0.5), 2: (1.4, 1.0, 0.7)}
+FIELDS = ["case", "formulation", "theta", "friction", "degree", "scale", "box", "cells",
+          "fracture_faces", "dofs", "l2", "l2_n", "transverse", "centre", "newton", "krylov",
+          "solver", "states", "time_total", "load"]
+
+
+def overrides(case: dict) -> list[str]:
+    """The ``--set`` overrides of one case."""
+    s, box = case["scale"], case["box"]
+    sets = [f"degree={case['degree']}", f"mesh.size={2 * s:g}", f"mesh.fracture_size={0.2 * s:g}",
+            f"mesh.tip_size={0.05 * s:g}", "mesh.transition=3",
+            f"geometry.domain.box=[{-box}, {-box}, {-box}, {box}, {box}, {box}]",
+            f"contact.formulation={case['formulation']}", f"contact.theta={case['theta']}",
+            f"contact.friction={case['friction']}", "output.xdmf=false",
+            "output.fractures_csv=false"]
+    if case["friction"] == "coulomb":
+        sets.append("contact.friction_coefficient=0.25")
+    return sets
+
+
+def run_case(sets: list[str]) -> dict:
+    """Solve one case in this process; errors, iterations and time."""
+    import dolfinx_solver  # noqa: F401
+
+    from poromech.run import Run
+    from poromech.scene.loading import load_scene
+    from poromech.verification.jumps import exact_jump, face_quadrature, jump_values
+
+    t0 = time.perf_counter()
+    scene = load_scene(SCENE, sets)
+    with Run(scene) as run:
+        summary = run.execute()
+        fm, model = run.physics.fm, run.physics.model
+        record = run.physics.solver.record
+        codes = np.unique(model.active_set()).tolist()
+        q = face_quadrature(fm, 6)
+        uh, ue = jump_values(model.u, q), exact_jump(scene)(q.points, q.normal)
+    total = time.perf_counter() - t0
+    prm = scene.parameters
+    shear = np.array([np.cos(prm["phi"]), np.sin(prm["phi"]), 0.0])
+    across = np.cross(q.normal, shear)  # in the crack plane, perpendicular to τ
+    ref = np.sum(q.weights * np.sum(ue**2, axis=1))
+
+    def rel(v):
+        return float(np.sqrt(np.sum(q.weights * v**2) / ref))
+
+    r = np.hypot(q.points[:, 0], q.points[:, 1])
+    c = np.argmin(r)
+    return {"cells": summary["mesh"]["cells"], "fracture_faces": summary["mesh"]["fracture_faces"],
+            "dofs": summary["dofs"], "l2": rel(np.linalg.norm(uh - ue, axis=1)),
+            "l2_n": rel(np.einsum("ij,ij->i", uh, q.normal)),
+            "transverse": rel(np.einsum("ij,ij->i", uh, across)),
+            "centre": float(np.linalg.norm(uh[c]) / np.linalg.norm(ue[c]) - 1.0),
+            "newton": record.iterations, "krylov": summary["linear_solver"]["krylov_iterations"],
+            "solver": summary["linear_solver"]["kind"], "states": " ".join(map(str, codes)),
+            "time_total": total}
+
+
+def _child(sets: list[str]) -> dict:
+    cmd = [sys.executable, __file__, "--case", json.dumps(sets)]
+    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=3600)
+    if proc.returncode != 0:
+        raise RuntimeError(proc.stderr[-2000:])
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def cases(quick: bool) -> list[dict]:
+    """Every case of the study, in run order."""
+    def cut(levels):
+        return levels[:2] if quick else levels
+
+    out = []
+    base = {"friction": "frictionless", "theta": -1, "box": 5.0}
+    for d in (1, 2):
+        out += [{**base, "case": "nitsche", "formulation": "nitsche", "degree": d, "scale": s}
+                for s in cut(SCALES[d])]
+        out += [{**base, "case": "mean_nitsche", "formulation": "mean_nitsche", "degree": d,
+                 "scale": s} for s in cut(MEAN_SCALES[d])]
+    for theta in (0, 1):
+        out += [{**base, "case": f"nitsche theta {theta}", "formulation": "nitsche",
+                 "theta": theta, "degree": 2, "scale": s} for s in cut(SCALES[2])]
+    out += [{**base, "case": "nitsche coulomb", "formulation": "nitsche", "friction": "coulomb",
+             "degree": 2, "scale": s} for s in cut(SCALES[2])]
+    if not quick:
+        out.append({**base, "case": "nitsche box 10a", "formulation": "nitsche", "degree": 2,
+                    "scale": 0.7, "box": 10.0})
+    return out
+
+
+def study(quick: bool) -> list[dict]:
+    rows = []
+    for case in cases(quick):
+        load = os.getloadavg()[0]
+        row = {**case, **_child(overrides(case)), "load": load}
+        print({k: row[k] for k in ("case", "degree", "scale", "dofs", "l2", "newton",
+                                   "time_total")}, flush=True)
+        rows.append(row)
+    return rows
+
+
+def _fmt(v) -> str:
+    return f"{v:.3g}" if isinstance(v, float) else str(v)
+
+
+def _order(seq: list[dict]) -> str:
+    a, b = seq[-2], seq[-1]
+    order = np.log(a["l2"] / b["l2"]) / np.log((b["dofs"] / a["dofs"]) ** (1 / 3))
+    return f"{order:.2f} ({a['l2']:.3g} → {b['l2']:.3g})"
+
+
+def report(rows: list[dict], command: str) -> None:
+    OUT.mkdir(parents=True, exist_ok=True)
+    stamp = f"Generated by `{command}` ({datetime.date.today()})"
+    with open(OUT / "penny_shear.csv", "w", newline="") as fh:
+        fh.write(f"# {stamp}\n")
+        w = csv.DictWriter(fh, FIELDS, extrasaction="ignore")
+        w.writeheader()
+        w.writerows(rows)
+    keys = ("case", "degree", "scale", "box", "dofs", "l2", "l2_n", "transverse", "centre",
+            "newton", "krylov", "solver", "time_total")
+    lines = [f"# A penny crack in contact under remote shear (Segedin): slip error, Newton, "
+             f"time\n\n{stamp}. See the docstring of `scripts/penny_shear.py` for the scene, "
+             "the cases and the columns.\n\n| " + " | ".join(keys) + " |\n|"
+             + "---|" * len(keys) + "\n"]
+    for r in rows:
+        lines.append("| " + " | ".join(_fmt(r[k]) for k in keys) + " |\n")
+    lines.append("\nObserved orders of the L² slip error in h (h ∝ unknowns^(-1/3)) between the "
+                 "last two levels (box 5a):\n\n")
+    for name in dict.fromkeys(r["case"] for r in rows):
+        for d in (1, 2):
+            seq = [r for r in rows if r["case"] == name and r["degree"] == d and r["box"] == 5.0]
+            if len(seq) >= 2:
+                lines.append(f"* {name}, P{d}: {_order(seq)}\n")
+    box = [r for r in rows if r["box"] == 10.0]
+    if box:
+        ref = next(r for r in rows if r["case"] == "nitsche" and r["degree"] == 2
+                   and r["scale"] == box[0]["scale"] and r["box"] == 5.0)
+        lines.append(f"\nBox of half-width 10a instead of 5a (nitsche, P2, scale {ref['scale']}): "
+                     f"L² error {box[0]['l2']:.3g} against {ref['l2']:.3g}, centre "
+                     f"{box[0]['centre']:.3g} against {ref['centre']:.3g}.\n")
+    (OUT / "penny_shear.md").write_text("".join(lines))
+    _figure(rows)
+
+
+def _figure(rows: list[dict]) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    names = list(dict.fromkeys(r["case"] for r in rows if r["box"] == 5.0))
+    colors = dict(zip(names, plt.rcParams["axes.prop_cycle"].by_key()["color"], strict=False))
+    for name in names:
+        for d, style in ((1, "s--"), (2, "o-")):
+            seq = [r for r in rows if r["case"] == name and r["degree"] == d and r["box"] == 5.0]
+            if not seq:
+                continue
+            lab = f"{name}, P{d}"
+            axes[0].loglog([r["dofs"] for r in seq], [r["l2"] for r in seq], style,
+                           color=colors[name], label=lab)
+            axes[1].loglog([r["time_total"] for r in seq], [r["l2"] for r in seq], style,
+                           color=colors[name], label=lab)
+    axes[0].set_xlabel("unknowns")
+    axes[1].set_xlabel("run time (s), mesh + set-up + solve")
+    for ax in axes:
+        ax.set_ylabel("relative L² error of the slip")
+        ax.grid(alpha=0.3, which="both")
+    axes[0].legend(fontsize=7)
+    fig.suptitle("Penny crack under remote shear, in contact (configs/penny_shear.yaml)")
+    fig.tight_layout()
+    fig.savefig(OUT / "penny_shear.png", dpi=90)
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--quick", action="store_true", help="the two coarsest levels only")
+    p.add_argument("--case", help=argparse.SUPPRESS)
+    p.add_argument("--report-only", action="store_true",
+                   help="redraw from docs/mechanics3d/penny_shear.csv")
+    args = p.parse_args()
+    if args.case:
+        print(json.dumps(run_case(json.loads(args.case))))
+        return
+    command = "python scripts/penny_shear.py" + (" --quick" if args.quick else "")
+    if args.report_only:
+        with open(OUT / "penny_shear.csv") as fh:
+            fh.readline()
+            rows = list(csv.DictReader(fh))
+        for r in rows:
+            for k in FIELDS:
+                if k in ("cells", "fracture_faces", "dofs", "newton", "krylov", "degree", "theta"):
+                    r[k] = int(r[k])
+                elif k in ("scale", "box", "l2", "l2_n", "transverse", "centre", "time_total",
+                           "load"):
+                    r[k] = float(r[k])
+    else:
+        rows = study(args.quick)
+    report(rows, command)
+
+
+if __name__ == "__main__":
+    main()

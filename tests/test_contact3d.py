@@ -1,0 +1,210 @@
+"""Contact in 3D: Nitsche formulations on penny cracks with known answers, 1 vs 2 ranks.
+
+* Sneddon's pressurized penny is open everywhere: contact terms leave it as without contact
+  (exactly for θ = 0, up to Nitsche's O(1/β) consistency term for θ = ±1).
+* Segedin's penny under remote shear, closed by a normal compression: frictionless it slips
+  parallel to the shear with a known profile; Tresca and Coulomb below the shear slip against a
+  uniform friction traction (the same profile for the shear minus that traction); Coulomb above
+  it sticks (no jump at all, the uniform far field is in the finite element space).
+"""
+
+from __future__ import annotations
+
+import csv
+
+import dolfinx_solver  # noqa: F401
+
+import numpy as np
+import pytest
+from conftest import ROOT, run_parallel
+from dolfinx.fem.petsc import assemble_matrix
+
+from poromech.forms.contact import ContactParameters
+from poromech.run import Run, run_scene
+from poromech.scene.loading import load_scene
+from poromech.verification.jumps import exact_jump, face_quadrature, jump_errors, jump_values
+
+PENNY = ROOT / "configs" / "penny.yaml"
+SHEAR = ROOT / "configs" / "penny_shear.yaml"
+#: A coarse penny (about 2k tetrahedra) for fast checks.
+COARSE = ["mesh.size=2.5", "mesh.fracture_size=0.3", "mesh.tip_size=0.075",
+          "mesh.transition=3", "output.xdmf=false"]
+FINE = ["mesh.size=2.5", "mesh.fracture_size=0.15", "mesh.tip_size=0.0375",
+        "mesh.transition=3", "output.xdmf=false"]
+#: Coulomb with F = 0.25 under σ = 2 MPa: the crack slips under τ - Fσ = 0.5 MPa.
+COULOMB_SLIP = ["contact.friction=coulomb", "contact.friction_coefficient=0.25"]
+TRESCA_SLIP = ["contact.friction=tresca", "contact.slip_bound=5.0e5"]
+
+
+def solve(path, overrides):
+    """Errors against the scene's exact jump, jump values, active-set codes, Newton record."""
+    scene = load_scene(path, overrides)
+    with Run(scene) as run:
+        run.execute()
+        physics = run.physics
+        err = jump_errors(physics.model.u, physics.fm, exact_jump(scene))
+        jumps = jump_values(physics.model.u, face_quadrature(physics.fm, 3))
+        codes = physics.model.active_set()
+        record = physics.solver.record
+        reuse = physics.solver.states_determine_jacobian
+    assert record.converged, record.reason
+    return {"err": err, "jumps": jumps, "codes": codes, "record": record, "reuse": reuse}
+
+
+def written_states(path, overrides, tmp_path) -> set[str]:
+    """The ``state`` words of ``fractures.csv``."""
+    run_scene(load_scene(path, overrides), tmp_path)
+    with open(tmp_path / "fractures.csv") as fh:
+        return {r["state"] for r in csv.DictReader(fh)}
+
+
+@pytest.mark.parametrize(("friction", "expected"), [("frictionless", True), ("tresca", False),
+                                                     ("coulomb", False)])
+def test_3d_friction_is_not_piecewise_affine(friction, expected):
+    """With friction in 3D the Jacobian depends on the slip direction, not only on the states:
+    Newton must assemble it at every iterate. In 2D it is a function of the states."""
+    for dim, want in ((2, True), (3, expected)):
+        p = ContactParameters("nitsche", friction, -1.0, 1.0, 1.0, dim=dim)
+        assert p.piecewise_affine is want
+
+
+@pytest.mark.parametrize("degree", [1, 2])
+def test_contact_points_are_the_quadrature_points(degree):
+    """On triangles the active set is read at the points of the contact quadrature (one
+    quadrature-element dof each): the point weights are positive and sum to each face's area,
+    and every code is a valid one (Lagrange nodes are not Gauss points there: a P2 vertex
+    function integrates to 0 on a triangle)."""
+    scene = load_scene(SHEAR, COARSE + [f"degree={degree}"])
+    with Run(scene) as run:
+        run.execute()
+        model = run.physics.model
+        weights = model._point_weights[model._points.function_space.dofmap.list[
+            :len(model.fm.fractures.facets)]]
+        assert weights.shape[1] == {1: 3, 2: 6}[degree]
+        assert np.all(weights > 0.0)
+        np.testing.assert_allclose(weights.sum(axis=1), model.fm.fractures.measure, rtol=1e-12)
+        assert set(np.unique(model.active_set())) <= {0, 1}
+
+
+@pytest.mark.parametrize("formulation", ["nitsche", "mean_nitsche"])
+def test_pressurized_penny_stays_open(formulation, tmp_path):
+    """Sneddon's penny with contact: all points open; θ = 0 gives the jump without contact to
+    solver tolerance, θ = -1 within its O(1/β) consistency term."""
+    none = solve(PENNY, COARSE)
+    scale = np.max(np.abs(none["jumps"]))
+    for theta, tol in ((0, 1e-9), (-1, 5e-3)):
+        sets = COARSE + [f"contact.formulation={formulation}", "contact.friction=coulomb",
+                         f"contact.theta={theta}"]
+        out = solve(PENNY, sets)
+        assert np.max(np.abs(out["jumps"] - none["jumps"])) < tol * scale
+        assert np.all(out["codes"] == 0)  # open, and no friction on open points
+    assert written_states(PENNY, sets, tmp_path) == {"open"}
+
+
+def test_segedin_slip_converges():
+    """Frictionless penny under shear (P2): slip parallel to τ, no opening, error falls."""
+    coarse, fine = solve(SHEAR, COARSE), solve(SHEAR, FINE)
+    assert coarse["err"]["l2"] < 0.095 and fine["err"]["l2"] < 0.055
+    assert np.log2(coarse["err"]["l2"] / fine["err"]["l2"]) > 0.6
+    for out in (coarse, fine):
+        assert out["err"]["l2_n"] < 1e-3  # closed: [[u]]_n ≈ 0 (β_n large)
+        assert np.all(out["codes"] == 1)  # in contact
+        assert out["record"].iterations == 1  # frictionless in contact: one linear solve
+
+
+def test_segedin_slip_is_parallel_to_the_shear():
+    """The component of the slip across τ is small against the slip."""
+    scene = load_scene(SHEAR, FINE)
+    phi = scene.parameters["phi"]
+    with Run(scene) as run:
+        run.execute()
+        q = face_quadrature(run.physics.fm, 3)
+        jumps = jump_values(run.physics.model.u, q)
+    shear = np.array([np.cos(phi), np.sin(phi), 0.0])
+    along = jumps @ shear
+    across = jumps @ np.cross([0.0, 0.0, 1.0], shear)
+    norm = np.sqrt(np.sum(q.weights * along**2))
+    assert np.sqrt(np.sum(q.weights * across**2)) < 0.02 * norm
+
+
+def test_mean_nitsche_slips_like_nitsche():
+    """mean_nitsche on the sheared penny: the same error level as pointwise Nitsche."""
+    mean, point = solve(SHEAR, COARSE + ["contact.formulation=mean_nitsche"]), solve(SHEAR, COARSE)
+    assert mean["err"]["l2"] == pytest.approx(point["err"]["l2"], rel=0.05)
+    assert mean["err"]["l2_n"] < 2e-3
+
+
+@pytest.mark.parametrize("law", [COULOMB_SLIP, TRESCA_SLIP], ids=["coulomb", "tresca"])
+def test_friction_below_the_shear_slips(law, tmp_path):
+    """Coulomb F = 0.25 (Fσ = 0.5 MPa) and Tresca s = 0.5 MPa under τ = 1 MPa: the slip of
+    τ - 0.5 MPa, every point slipping; the Jacobian is assembled at every iterate."""
+    out = solve(SHEAR, COARSE + law)
+    assert out["err"]["l2"] < 0.095 and out["err"]["l2_n"] < 1e-3
+    assert out["err"]["norm"] == pytest.approx(0.5 * solve(SHEAR, COARSE)["err"]["norm"])
+    assert not out["reuse"] and out["record"].jacobian_reuses == 0
+    assert out["record"].iterations <= 6
+    assert np.all(out["codes"] == 3)  # in contact (1) + slip (2)
+    assert written_states(SHEAR, COARSE + law, tmp_path) == {"slip"}
+
+
+def test_coulomb_above_the_shear_sticks(tmp_path):
+    """F = 1 > τ/σ = 0.5: the crack sticks and the uniform far field is the exact solution."""
+    sets = COARSE + ["contact.friction=coulomb", "contact.friction_coefficient=1.0"]
+    out = solve(SHEAR, sets)
+    slip = solve(SHEAR, COARSE)["jumps"]
+    assert np.max(np.abs(out["jumps"])) < 1e-8 * np.max(np.abs(slip))
+    assert np.all(out["codes"] == 1)  # in contact, stick
+    assert written_states(SHEAR, sets, tmp_path) == {"stick"}
+
+
+def test_symmetric_nitsche_with_friction_in_3d():
+    """θ = 1 with Coulomb friction in 3D: its coercivity ratio (tangential traction in the face
+    plane) is computed, and the crack slips as with θ = -1."""
+    sets = COARSE + COULOMB_SLIP
+    scene = load_scene(SHEAR, sets + ["contact.theta=1"])
+    with Run(scene) as run:
+        run.execute()
+        model = run.physics.model
+        err = jump_errors(model.u, run.physics.fm, exact_jump(scene))
+        assert 0.0 < model.coercivity_ratio < 1.0
+        assert np.all(model.active_set() == 3)
+    assert err["l2"] == pytest.approx(solve(SHEAR, sets)["err"]["l2"], rel=0.02)
+
+
+def test_coulomb_jacobian_at_rest_is_finite():
+    """At rest ``P_τ = 0``: the ball projection takes its stick branch (``|P_τ| <= S``), and
+    ``P_τ/|P_τ|`` of the other branch never reaches the Jacobian (no regularization)."""
+    scene = load_scene(SHEAR, COARSE + COULOMB_SLIP)
+    with Run(scene) as run:
+        run.execute()
+        model = run.physics.model
+        model.u.x.array[:] = 0.0
+        A = assemble_matrix(model.J[0][0])
+        A.assemble()
+        assert np.isfinite(A.norm()) and A.norm() > 0.0
+        A.destroy()
+
+
+@pytest.mark.mpi
+def test_segedin_on_two_ranks_equals_one_rank():
+    sets = COARSE + COULOMB_SLIP
+    code = f"""
+import json
+import dolfinx_solver
+from mpi4py import MPI
+from poromech.run import Run
+from poromech.scene.loading import load_scene
+from poromech.verification.jumps import exact_jump, jump_errors
+scene = load_scene({str(SHEAR)!r}, {sets!r})
+with Run(scene) as run:
+    run.execute()
+    err = jump_errors(run.physics.model.u, run.physics.fm, exact_jump(scene))
+    err["iterations"] = run.physics.solver.record.iterations
+if MPI.COMM_WORLD.rank == 0:
+    print(json.dumps(err))
+"""
+    two = run_parallel(code)
+    one = solve(SHEAR, sets)
+    for key in ("l2", "l2_n", "l2_t", "max"):
+        assert two[key] == pytest.approx(one["err"][key], rel=1e-8, abs=1e-12)
+    assert two["iterations"] == one["record"].iterations
