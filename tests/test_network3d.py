@@ -71,7 +71,8 @@ def test_network_newton_per_step(network):
     its = [s["iterations"] for s in summary["solves"]]
     assert all(s["converged"] for s in summary["solves"])
     assert max(its) <= 15
-    assert its == [6, 7, 4, 4]  # measured; the study script tracks finer meshes
+    # measured 6, 7, 4, 4; a different BLAS may move a step by one
+    assert all(abs(a - b) <= 1 for a, b in zip(its, [6, 7, 4, 4], strict=True))
 
 
 def test_network_states_match_tractions_and_jumps(network):
