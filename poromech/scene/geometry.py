@@ -19,7 +19,7 @@ from poromech.geometry.box import BoxGeometry, Fracture3D
 from poromech.geometry.plane import PlaneGeometry
 from poromech.mesh.generate import MeshSizes
 from poromech.scene.builder import Builder, deep_copy, field_meta, format_value
-from poromech.scene.schema import Domain, FractureSpec, MeshSpec, Scene
+from poromech.scene.schema import Domain, FractureSpec, MeshSpec, Scene, scene_dimension
 
 __all__ = [
     "RECTANGLE_EDGES",
@@ -64,11 +64,6 @@ def scene_geometry(scene: Scene) -> PlaneGeometry | BoxGeometry:
         names = tuple(names)
     fractures = tuple(np.array(f.points, dtype=np.float64) for f in scene.geometry.fractures)
     return PlaneGeometry(boundary, names, fractures, fnames)
-
-
-def scene_dimension(scene: Scene) -> int:
-    """2, or 3 for a box domain."""
-    return 3 if scene.geometry.domain is not None and scene.geometry.domain.box is not None else 2
 
 
 def check_domain(scene: Scene) -> None:

@@ -44,8 +44,7 @@ from mpi4py import MPI
 
 from poromech.geometry.box import BoxGeometry
 from poromech.geometry.plane import PlaneGeometry
-from poromech.scene.geometry import scene_dimension
-from poromech.scene.schema import ITERATIVE_FROM_UNKNOWNS_3D
+from poromech.scene.schema import ITERATIVE_FROM_UNKNOWNS_3D, scene_dimension
 
 __all__ = [
     "ITERATIVE_FORMULATIONS",

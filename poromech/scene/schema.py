@@ -34,6 +34,7 @@ __all__ = [
     "Scene",
     "Solver",
     "TimeSpec",
+    "scene_dimension",
     "step_times",
 ]
 
@@ -597,6 +598,11 @@ class Scene:
     )
     probes: tuple[Probe, ...] = field(default=(), metadata=doc("sampling lines"))
     output: Output = field(default_factory=Output, metadata=doc("output selection"))
+
+
+def scene_dimension(scene: Scene) -> int:
+    """2, or 3 for a box domain."""
+    return 3 if scene.geometry.domain is not None and scene.geometry.domain.box is not None else 2
 
 
 def step_times(scene: Scene) -> list[float]:
