@@ -26,12 +26,11 @@ import csv
 import datetime
 import json
 import os
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
+from penny_common import child_case, error_figure, fmt
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "docs" / "mechanics3d"
@@ -62,8 +61,8 @@ ACCURATE = ["degree=2", "mesh.size=2", "mesh.fracture_size=0.1", "mesh.tip_size=
 
 def accurate_row() -> dict:
     """The case of :data:`ACCURATE` (grading ``accurate``)."""
-    return {"degree": 2, "grading": "accurate", "scale": 0.0, "box": 10.0, **_child(ACCURATE),
-            "load": os.getloadavg()[0]}
+    return {"degree": 2, "grading": "accurate", "scale": 0.0, "box": 10.0,
+            **child_case(__file__, ACCURATE), "load": os.getloadavg()[0]}
 
 
 def run_case(sets: list[str]) -> dict:
@@ -99,37 +98,27 @@ def run_case(sets: list[str]) -> dict:
             "time_mesh": summary["wall_time"].get("mesh", float("nan")), "time_total": total}
 
 
-def _child(sets: list[str]) -> dict:
-    cmd = [sys.executable, __file__, "--case", json.dumps(sets)]
-    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=3600)
-    if proc.returncode != 0:
-        raise RuntimeError(proc.stderr[-2000:])
-    return json.loads(proc.stdout.strip().splitlines()[-1])
-
-
 def study(scales: dict[int, tuple], boxes: bool) -> list[dict]:
     rows = []
     for degree in (1, 2):
-        _child(overrides(scales[degree][0], True, degree))  # compile the forms of this degree
+        # compile the forms of this degree
+        child_case(__file__, overrides(scales[degree][0], True, degree))
         for graded in (True, False):
             for s in scales[degree]:
                 load = os.getloadavg()[0]
                 row = {"degree": degree, "grading": "tip" if graded else "none", "scale": s,
-                       "box": 5.0, **_child(overrides(s, graded, degree)), "load": load}
+                       "box": 5.0, **child_case(__file__, overrides(s, graded, degree)),
+                       "load": load}
                 print({k: row[k] for k in ("degree", "grading", "scale", "dofs", "l2",
                                            "time_total")}, flush=True)
                 rows.append(row)
     if boxes:
         s = scales[2][-1]
         row = {"degree": 2, "grading": "tip", "scale": s, "box": 10.0,
-               **_child(overrides(s, True, 2, 10.0)), "load": os.getloadavg()[0]}
+               **child_case(__file__, overrides(s, True, 2, 10.0)), "load": os.getloadavg()[0]}
         rows.append(row)
         rows.append(accurate_row())
     return rows
-
-
-def _fmt(v) -> str:
-    return f"{v:.3g}" if isinstance(v, float) else str(v)
 
 
 def report(rows: list[dict], command: str) -> None:
@@ -148,7 +137,7 @@ def report(rows: list[dict], command: str) -> None:
     lines.append("\n| degree | tip grading | scale | cells | unknowns | L² error | interior r<0.9a "
                  "| rim | centre | run s |\n|---|---|---|---|---|---|---|---|---|---|\n")
     for r in main:
-        lines.append("| " + " | ".join(_fmt(r[k]) for k in (
+        lines.append("| " + " | ".join(fmt(r[k]) for k in (
             "degree", "grading", "scale", "cells", "dofs", "l2", "l2_interior", "l2_rim",
             "centre", "time_total")) + " |\n")
     lines.append("\nObserved orders of the L² error in h (h ∝ unknowns^(-1/3)) between the last "
@@ -180,31 +169,15 @@ def report(rows: list[dict], command: str) -> None:
 
 
 def _figure(rows: list[dict]) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    curves = []
     for d, color in ((1, "tab:orange"), (2, "tab:blue")):
         for g, style in (("tip", "o-"), ("none", "s--")):
             seq = [r for r in rows if r["degree"] == d and r["grading"] == g]
-            if not seq:
-                continue
-            lab = f"P{d}, {'tip grading' if g == 'tip' else 'no grading'}"
-            axes[0].loglog([r["dofs"] for r in seq], [r["l2"] for r in seq], style, color=color,
-                           label=lab)
-            axes[1].loglog([r["time_total"] for r in seq], [r["l2"] for r in seq], style,
-                           color=color, label=lab)
-    axes[0].set_xlabel("unknowns")
-    axes[1].set_xlabel("run time (s), mesh + set-up + solve")
-    for ax in axes:
-        ax.set_ylabel("relative L² error of the jump")
-        ax.grid(alpha=0.3, which="both")
-    axes[0].legend(fontsize=8)
-    fig.suptitle("Sneddon's penny crack (configs/penny.yaml)")
-    fig.tight_layout()
-    fig.savefig(OUT / "penny.png", dpi=110)
+            if seq:
+                label = f"P{d}, {'tip grading' if g == 'tip' else 'no grading'}"
+                curves.append((label, style, color, seq))
+    error_figure(curves, "relative L² error of the jump",
+                 "Sneddon's penny crack (configs/penny.yaml)", OUT / "penny.png")
 
 
 def main() -> None:

@@ -36,12 +36,11 @@ import csv
 import datetime
 import json
 import os
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
+from penny_common import child_case, error_figure, fmt
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "docs" / "mechanics3d"
@@ -107,14 +106,6 @@ def run_case(sets: list[str]) -> dict:
             "time_total": total}
 
 
-def _child(sets: list[str]) -> dict:
-    cmd = [sys.executable, __file__, "--case", json.dumps(sets)]
-    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=3600)
-    if proc.returncode != 0:
-        raise RuntimeError(proc.stderr[-2000:])
-    return json.loads(proc.stdout.strip().splitlines()[-1])
-
-
 def cases(quick: bool) -> list[dict]:
     """Every case of the study, in run order."""
     def cut(levels):
@@ -142,15 +133,11 @@ def study(quick: bool) -> list[dict]:
     rows = []
     for case in cases(quick):
         load = os.getloadavg()[0]
-        row = {**case, **_child(overrides(case)), "load": load}
+        row = {**case, **child_case(__file__, overrides(case)), "load": load}
         print({k: row[k] for k in ("case", "degree", "scale", "dofs", "l2", "newton",
                                    "time_total")}, flush=True)
         rows.append(row)
     return rows
-
-
-def _fmt(v) -> str:
-    return f"{v:.3g}" if isinstance(v, float) else str(v)
 
 
 def _order(seq: list[dict]) -> str:
@@ -174,7 +161,7 @@ def report(rows: list[dict], command: str) -> None:
              "the cases and the columns.\n\n| " + " | ".join(keys) + " |\n|"
              + "---|" * len(keys) + "\n"]
     for r in rows:
-        lines.append("| " + " | ".join(_fmt(r[k]) for k in keys) + " |\n")
+        lines.append("| " + " | ".join(fmt(r[k]) for k in keys) + " |\n")
     lines.append("\nObserved orders of the L² slip error in h (h ∝ unknowns^(-1/3)) between the "
                  "last two levels (box 5a):\n\n")
     for name in dict.fromkeys(r["case"] for r in rows):
@@ -194,33 +181,19 @@ def report(rows: list[dict], command: str) -> None:
 
 
 def _figure(rows: list[dict]) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
     names = list(dict.fromkeys(r["case"] for r in rows if r["box"] == 5.0))
     colors = dict(zip(names, plt.rcParams["axes.prop_cycle"].by_key()["color"], strict=False))
+    curves = []
     for name in names:
         for d, style in ((1, "s--"), (2, "o-")):
             seq = [r for r in rows if r["case"] == name and r["degree"] == d and r["box"] == 5.0]
-            if not seq:
-                continue
-            lab = f"{name}, P{d}"
-            axes[0].loglog([r["dofs"] for r in seq], [r["l2"] for r in seq], style,
-                           color=colors[name], label=lab)
-            axes[1].loglog([r["time_total"] for r in seq], [r["l2"] for r in seq], style,
-                           color=colors[name], label=lab)
-    axes[0].set_xlabel("unknowns")
-    axes[1].set_xlabel("run time (s), mesh + set-up + solve")
-    for ax in axes:
-        ax.set_ylabel("relative L² error of the slip")
-        ax.grid(alpha=0.3, which="both")
-    axes[0].legend(fontsize=7)
-    fig.suptitle("Penny crack under remote shear, in contact (configs/penny_shear.yaml)")
-    fig.tight_layout()
-    fig.savefig(OUT / "penny_shear.png", dpi=90)
+            if seq:
+                curves.append((f"{name}, P{d}", style, colors[name], seq))
+    error_figure(curves, "relative L² error of the slip",
+                 "Penny crack under remote shear, in contact (configs/penny_shear.yaml)",
+                 OUT / "penny_shear.png", dpi=90, legend_size=7)
 
 
 def main() -> None:
