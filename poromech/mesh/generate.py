@@ -17,7 +17,7 @@ import numpy.typing as npt
 
 from poromech.geometry.plane import PlaneGeometry, arc_length_positions
 
-__all__ = ["MeshArrays", "MeshSizes", "generate_mesh", "gmsh_session"]
+__all__ = ["MeshArrays", "MeshSizes", "generate_mesh", "gmsh_session", "threshold_field"]
 
 
 @dataclass(frozen=True)
@@ -118,30 +118,37 @@ def _build_model(gmsh, geo: PlaneGeometry):
     return _classify_boundary(gmsh, geo), fracture_curves, owners
 
 
+def threshold_field(field, kind: str, entities: list[int], size_min: float, sizes: MeshSizes,
+                    sampling: int | None = None) -> int:
+    """A gmsh size field: ``size_min`` at the entities, ``sizes.size`` beyond ``transition``.
+
+    ``field`` is ``gmsh.model.mesh.field``; ``sampling``: points per curve or surface of the
+    distance (gmsh's default when None).
+    """
+    d = field.add("Distance")
+    field.setNumbers(d, kind, entities)
+    if sampling is not None:
+        field.setNumber(d, "Sampling", sampling)
+    th = field.add("Threshold")
+    field.setNumber(th, "InField", d)
+    field.setNumber(th, "SizeMin", size_min)
+    field.setNumber(th, "SizeMax", sizes.size)
+    field.setNumber(th, "DistMin", 0.0)
+    field.setNumber(th, "DistMax", sizes.transition)
+    return th
+
+
 def _size_fields(gmsh, fracture_curves, sizes: MeshSizes) -> None:
     """Background size field: min of thresholds on fracture and fracture-end distances."""
     field = gmsh.model.mesh.field
     curves = sorted({c for cs in fracture_curves.values() for c in cs})
     fields = []
-
-    def threshold(kind: str, entities: list[int], size_min: float) -> int:
-        """Size ``size_min`` at the entities, growing to ``size`` over ``transition``."""
-        d = field.add("Distance")
-        field.setNumbers(d, kind, entities)
-        if kind == "CurvesList":
-            field.setNumber(d, "Sampling", 200)
-        th = field.add("Threshold")
-        field.setNumber(th, "InField", d)
-        field.setNumber(th, "SizeMin", size_min)
-        field.setNumber(th, "SizeMax", sizes.size)
-        field.setNumber(th, "DistMin", 0.0)
-        field.setNumber(th, "DistMax", sizes.transition)
-        return th
-
     if curves:
         ends = gmsh.model.getBoundary([(1, c) for c in curves], combined=False, oriented=False)
-        fields.append(threshold("CurvesList", curves, sizes.fracture_size))
-        fields.append(threshold("PointsList", sorted({abs(t) for _, t in ends}), sizes.tip_size))
+        fields.append(threshold_field(field, "CurvesList", curves, sizes.fracture_size, sizes,
+                                      sampling=200))
+        fields.append(threshold_field(field, "PointsList", sorted({abs(t) for _, t in ends}),
+                                      sizes.tip_size, sizes))
     const = field.add("MathEval")
     field.setString(const, "F", repr(float(sizes.size)))
     fields.append(const)

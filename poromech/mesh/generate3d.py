@@ -37,7 +37,7 @@ from poromech.mesh.cracking import (
     facet_table,
     unique_rows,
 )
-from poromech.mesh.generate import MeshArrays, MeshSizes, gmsh_session
+from poromech.mesh.generate import MeshArrays, MeshSizes, gmsh_session, threshold_field
 
 __all__ = [
     "ALGORITHM_2D",
@@ -174,26 +174,14 @@ def _size_fields(gmsh, geo: BoxGeometry, surfaces: list[list[int]], tips: list[i
     fld = gmsh.model.mesh.field
     extent = max((float(np.ptp(f.outline(), axis=0).max()) for f in geo.fractures), default=1.0)
 
-    def threshold(kind: str, tags: list[int], size_min: float, sampling: int) -> int:
-        d = fld.add("Distance")
-        fld.setNumbers(d, kind, tags)
-        fld.setNumber(d, "Sampling", sampling)
-        th = fld.add("Threshold")
-        fld.setNumber(th, "InField", d)
-        fld.setNumber(th, "SizeMin", size_min)
-        fld.setNumber(th, "SizeMax", sizes.size)
-        fld.setNumber(th, "DistMin", 0.0)
-        fld.setNumber(th, "DistMax", sizes.transition)
-        return th
-
     fields = []
     all_surfaces = sorted({s for ss in surfaces for s in ss})
     if all_surfaces:
-        fields.append(threshold("SurfacesList", all_surfaces, sizes.fracture_size,
-                                _sampling(extent, sizes.fracture_size, 20, 400)))
+        fields.append(threshold_field(fld, "SurfacesList", all_surfaces, sizes.fracture_size,
+                                      sizes, _sampling(extent, sizes.fracture_size, 20, 400)))
     if tips:
-        fields.append(threshold("CurvesList", tips, sizes.tip_size,
-                                _sampling(extent, sizes.tip_size, 20, 2000)))
+        fields.append(threshold_field(fld, "CurvesList", tips, sizes.tip_size, sizes,
+                                      _sampling(extent, sizes.tip_size, 20, 2000)))
     const = fld.add("MathEval")
     fld.setString(const, "F", repr(float(sizes.size)))
     fields.append(const)
