@@ -111,15 +111,21 @@ def check_pieces(scene: Scene, fm: FracturedMesh) -> None:
         log.warning("%s: only contact holds it", text)
 
 
-def formulation_options(formulation: str) -> dict:
-    """PETSc defaults that depend on the formulation.
+def formulation_options(formulation: str, dim: int = 2) -> dict:
+    """PETSc defaults that depend on the formulation (and the dimension).
 
     The mixed method with P1 displacements is not inf-sup stable: when every face of a fracture
     sticks there are more facewise constraints than jump dofs and the Jacobian is singular (the
     displacement is unique, the multipliers are not). MUMPS null-pivot detection
-    (ICNTL(24) = 1) then returns one of the solutions instead of failing.
+    (ICNTL(24) = 1) then returns one of the solutions instead of failing. In 3D a triangulated
+    fracture has about two faces per node, so P1 has six multipliers per three jump dofs: the
+    null pivots are many, and their delayed pivoting overflows MUMPS's default workspace
+    (INFOG(1) = -9 on the penny crack under shear with friction); ICNTL(14) = 100 allows it.
     """
-    return {"mat_mumps_icntl_24": 1} if formulation == "mixed" else {}
+    if formulation != "mixed":
+        return {}
+    return {"mat_mumps_icntl_24": 1} if dim == 2 else {"mat_mumps_icntl_24": 1,
+                                                       "mat_mumps_icntl_14": 100}
 
 
 class MechanicsPhysics:
@@ -161,7 +167,8 @@ class MechanicsPhysics:
             options = linear_solver_options(self.linear_solver, model.params.formulation)
             self.solver = SemiSmoothNewton(
                 model.F, model.J, model.unknowns, model.bcs, prefix="mech_",
-                options={**options, **formulation_options(model.params.formulation),
+                options={**options,
+                         **formulation_options(model.params.formulation, fm.msh.topology.dim),
                          **scene.solver.petsc},
                 line_search=scene.solver.line_search,
                 reuse_jacobian=scene.solver.reuse_jacobian,
@@ -203,6 +210,11 @@ class MechanicsPhysics:
         from poromech.mechanics.condensed import MAX_FACE_UNKNOWNS, CondensedContact, applicable
 
         m, scene, ksp = self.model, self.scene, self.solver.snes.getKSP()
+        if scene.solver.condensation and m.lam is not None and self.fm.msh.topology.dim == 3:
+            log.info("the mixed contact problem is not condensed in 3D: its dense face problem "
+                     "on one rank grows as the square of the fracture faces and was slower than "
+                     "the regular Newton already on the penny crack (docs/mechanics3d.md)")
+            return None
         if not (scene.solver.condensation and m.lam is not None
                 and applicable(m.params.formulation, scene.degree, scene.contact.friction)
                 and self.solver.states_determine_jacobian and is_direct(ksp)

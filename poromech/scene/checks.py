@@ -51,19 +51,11 @@ def check_components(key: str, value, dim: int) -> None:
                           f"{dim} ({names})")
 
 
-#: Contact formulations not yet available in 3D.
-LATER_IN_3D = ("mixed", "stabilized_mixed")
-
-
 def _check_3d(scene: Scene) -> None:
     """What 3D scenes can do in this version: mechanics, fractures open or in Nitsche contact."""
     if scene.physics != "mechanics":
         raise ConfigError(f"scene key 'physics' = {scene.physics!r} is not available in 3D yet "
                           "(a box domain): 3D runs physics 'mechanics'")
-    if scene.contact.formulation in LATER_IN_3D:
-        raise ConfigError(f"scene key 'contact.formulation' = {scene.contact.formulation!r} is "
-                          "not available in 3D yet (multipliers and face averages on triangles "
-                          "come later): 3D contact runs nitsche or mean_nitsche (or none)")
 
 
 def _check_mechanics(scene: Scene, geo: PlaneGeometry) -> None:
