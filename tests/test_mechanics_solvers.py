@@ -300,3 +300,41 @@ def test_a_floating_piece_is_refused():
     assert message.startswith("scene key 'boundary_conditions': the fractures cut the body "
                               "into 2 pieces and piece 2 of 2 (")
     assert "on back, front, left, right, top) has no displacement condition in xyz" in message
+
+
+@pytest.mark.parametrize("formulation", ["nitsche", "mean_nitsche", "stabilized_mixed"])
+def test_iterative_on_a_piece_held_only_by_contact(formulation):
+    """The top piece of the cut box is pushed down onto the bottom one and sheared below the
+    friction bound: only contact holds it (its rigid motions are penalized by β/h alone).
+    GMRES + GAMG converges (face unknowns eliminated for the facewise formulations), to the
+    direct solution and states; every point in contact, sticking."""
+    u, its, codes = {}, {}, {}
+    for kind in ("direct", "iterative"):
+        raw = copy.deepcopy(CUT)
+        raw.pop("fracture_pressure")
+        raw["contact"] = {"formulation": formulation, "theta": -1, "friction": "coulomb",
+                          "friction_coefficient": 0.5}
+        raw["boundary_conditions"][1] = {"boundary": "top", "traction": [1.0e5, 0.0, -1.0e6]}
+        raw["solver"] = {"linear_solver": kind}
+        with Run(scene_from_dict(raw)) as run:
+            summary = run.execute()
+            u[kind] = run.physics.model.u.x.array.copy()
+            its[kind] = summary["linear_solver"]["krylov_iterations"]
+            codes[kind] = run.physics.model.active_set()
+            assert run.physics.solver.record.converged
+    assert its["direct"] == 0 and 0 < its["iterative"] <= 400
+    assert np.all(codes["iterative"] == 1) and np.array_equal(codes["iterative"], codes["direct"])
+    assert _relative(u["iterative"], u["direct"]) < 1e-6
+
+
+def test_forcing_term_of_the_inexact_newton():
+    """The Krylov tolerance: loose far from the solution, following the observed rate, never
+    tighter than the options' nor than the Newton's tolerance needs (0.1 of its target)."""
+    from poromech.mechanics.linear import FORCING_MAX, forcing_term
+
+    assert forcing_term(1.0, None, 1e-10, 1e-11) == FORCING_MAX  # first iteration
+    assert forcing_term(1e-2, 1.0, 1e-10, 1e-11) == pytest.approx(0.9e-4)  # γ (1e-2)²
+    assert forcing_term(1e-6, 1e-2, 1e-10, 1e-11) == pytest.approx(1e-5)  # 0.1 target / |F|
+    assert forcing_term(1e-6, 1e-2, 1e-20, 1e-11) == pytest.approx(0.9e-8)
+    assert forcing_term(1e-6, 1e-2, 1e-30, 1e-7) == 1e-7  # the options' ksp_rtol
+    assert forcing_term(1.0, 0.5, 1e-10, 1e-11) == FORCING_MAX  # slow progress: capped

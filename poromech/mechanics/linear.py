@@ -38,6 +38,7 @@ from poromech.petsc_options import ksp_reason_name
 
 __all__ = [
     "DirectSolver",
+    "FaceElimination",
     "HISTORY_QUOTED",
     "ITERATIVE_OPTIONS",
     "IterativeSolver",
@@ -48,6 +49,7 @@ __all__ = [
     "STALE_MIN_UNKNOWNS",
     "STALE_RTOL",
     "failure_message",
+    "forcing_term",
     "is_direct",
     "iterative_options",
     "linear_strategy",
@@ -118,6 +120,50 @@ ITERATIVE_OPTIONS: dict[str, object] = {
     "mg_levels_pc_type": "jacobi",
     "pc_factor_mat_solver_type": None,  # the direct default, removed
 }
+
+
+#: Largest relative tolerance of a Krylov solve of the Newton direction (the first iteration,
+#: and any iteration far from the solution): an inexact Newton (Eisenstat and Walker 1996,
+#: choice 2) solves the direction only as accurately as the nonlinear residual's next decrease
+#: can use; the scene's ``ksp_rtol`` (default 1e-11) is the tightest it asks for.
+FORCING_MAX = 1e-2
+#: ``η_k = γ (‖F_k‖ / ‖F_{k-1}‖)²``: the tolerance follows the observed convergence rate.
+FORCING_GAMMA = 0.9
+#: A direction is never solved beyond ``FORCING_MARGIN`` times what the Newton tolerance needs:
+#: at a root of the affine piece the next residual is the linear one, ``η_k ‖F_k‖``.
+FORCING_MARGIN = 0.1
+
+
+#: A lagged preconditioner (:class:`IterativeSolver`) is kept while the Krylov method converges
+#: within ``LAG_FACTOR`` times the iterations per decade of the solve that followed its set-up
+#: (plus :data:`LAG_EXTRA`): beyond, a new set-up costs less than the extra iterations.
+LAG_FACTOR = 1.5
+LAG_EXTRA = 5
+
+
+def _decades(rtol: float) -> float:
+    """Decades of residual reduction a relative tolerance asks for (at least 1)."""
+    return max(1.0, -np.log10(max(rtol, 1e-300)))
+
+
+def forcing_term(fnorm: float, previous: float | None, target: float, floor: float) -> float:
+    """Relative tolerance of the Krylov solve of a Newton direction (inexact Newton).
+
+    Args:
+        fnorm: ``‖F_k‖`` at the current iterate.
+        previous: ``‖F_{k-1}‖`` (None at the first iteration).
+        target: The absolute residual the Newton must reach (``snes_rtol`` times its base).
+        floor: The tightest tolerance (the scene's ``ksp_rtol``).
+
+    Returns:
+        ``η_k = max(min(FORCING_MAX, γ (‖F_k‖/‖F_{k-1}‖)²), FORCING_MARGIN target/‖F_k‖)``,
+        at least ``floor`` and at most :data:`FORCING_MAX`.
+    """
+    eta = FORCING_MAX if not previous else min(FORCING_MAX,
+                                               FORCING_GAMMA * (fnorm / previous) ** 2)
+    if fnorm > 0:
+        eta = max(eta, FORCING_MARGIN * target / fnorm)
+    return float(min(max(eta, floor), FORCING_MAX))
 
 
 def iterative_options(symmetric: bool) -> dict[str, object]:
@@ -428,12 +474,26 @@ class IterativeSolver:
         rng = np.random.default_rng(self.comm.rank)
         self._probe.getArray()[:] = rng.random(self._probe.getLocalSize())
         self._fingerprint = None  # A z of the Jacobian of the last set-up
+        self._rtol = ksp.getTolerances()[0]
+        #: Solve a changed Jacobian with the last preconditioner first (see :meth:`solve`).
+        self.lagged = False
+        self._rate = None  # Krylov iterations per decade of the solve after the last set-up
         # residual norms of each solve (reset per solve), quoted when one fails
         ksp.setConvergenceHistory(length=ksp.getTolerances()[3] + 1, reset=True)
 
     def assembled(self, states: npt.NDArray | None) -> None:
         """A new Jacobian is in the matrix: compared with the set-up one at the next solve."""
         self._fresh = True
+
+    @property
+    def tightest(self) -> float:
+        """The relative tolerance of the options (``ksp_rtol``): the tightest solve."""
+        return self._rtol
+
+    def set_tolerance(self, rtol: float) -> None:
+        """Relative tolerance of the next solve (:func:`forcing_term`)."""
+        rt, atol, dtol, max_it = self.ksp.getTolerances()
+        self.ksp.setTolerances(rtol=rtol, atol=atol, divtol=dtol, max_it=max_it)
 
     def _unchanged(self) -> bool:
         """Whether the fingerprint of the matrix equals that of the last set-up (collective)."""
@@ -453,10 +513,28 @@ class IterativeSolver:
     def solve(self, F: PETSc.Vec, Y: PETSc.Vec, record, states: npt.NDArray | None) -> bool:
         """``J Y = F`` by the Krylov method, from a zero guess.
 
-        On failure the record's ``linear_failure`` says why (KSP reason, iterations, residual).
+        A changed Jacobian is first solved with the preconditioner of an earlier one (when
+        :attr:`lagged`), within :data:`LAG_FACTOR` times the iterations per decade of the
+        solve that followed its set-up; if that does not converge, the preconditioner is set up
+        for the current Jacobian and the solve starts again. On failure the record's
+        ``linear_failure`` says why (KSP reason, iterations, residual).
         """
         ksp, pc = self.ksp, self.ksp.getPC()
-        if self._fresh and not (self.reuse and self._unchanged()):
+        changed = self._fresh and not (self.reuse and self._unchanged())
+        self._fresh = False
+        if changed and self.lagged and self._rate is not None:
+            ksp.setOperators(self.A, self.A)
+            pc.setReusePreconditioner(True)
+            rtol, atol, dtol, max_it = ksp.getTolerances()
+            cap = int(np.ceil(LAG_FACTOR * self._rate * _decades(rtol))) + LAG_EXTRA
+            ksp.setTolerances(rtol, atol, dtol, min(cap, max_it))
+            ksp.solve(F, Y)
+            ksp.setTolerances(rtol, atol, dtol, max_it)
+            record.linear_iterations += ksp.getIterationNumber()
+            if ksp.getConvergedReason() > 0:
+                record.stale_solves += 1
+                return True
+        if changed:
             ksp.setOperators(self.A, self.A)
             pc.setReusePreconditioner(False)
             t0 = time.perf_counter()
@@ -465,11 +543,12 @@ class IterativeSolver:
             record.factorizations += 1
         else:
             pc.setReusePreconditioner(True)
-        self._fresh = False
         ksp.solve(F, Y)
         its = ksp.getIterationNumber()
         record.linear_iterations += its
         if ksp.getConvergedReason() > 0:
+            if changed:
+                self._rate = max(its, 1) / _decades(ksp.getTolerances()[0])
             return True
         record.linear_failure = failure_message(ksp, F)
         return False
@@ -488,9 +567,165 @@ class IterativeSolver:
                 obj.destroy()
 
 
+class FaceElimination:
+    """A Krylov solve of the displacement Schur complement, the face unknowns eliminated exactly.
+
+    For the facewise formulations whose face block is invertible (``mean_nitsche``: face
+    averages; ``stabilized_mixed``: multipliers and averages), the Jacobian
+
+    .. code-block:: text
+
+        J = [A_uu  A_uf]      A_ff block diagonal: one small dense block per fracture face
+            [A_fu  A_ff]      (its multiplier and average components)
+
+    is solved through ``S = A_uu - A_uf A_ff⁻¹ A_fu``, a sparse displacement operator (the face
+    blocks couple the dofs of the two cells of each face only): ``S Y_u = F_u - A_uf A_ff⁻¹ F_f``
+    by the wrapped :class:`IterativeSolver` (GAMG with the rigid-body modes on ``S``), then
+    ``Y_f = A_ff⁻¹ (F_f - A_fu Y_u)``. Exact: ``A_ff⁻¹`` is computed face by face (batched dense
+    inverses of at most ``(2d + d)²`` entries), so the direction is that of the full system to
+    the Krylov tolerance. The face unknowns of a face are owned by the rank that owns the face,
+    so the inversion needs no communication. ``mixed`` cannot be eliminated this way: its
+    multiplier rows have no ``λ`` derivative on faces in contact (its face block is singular).
+
+    Args:
+        ksp: The Newton's KSP (configured from its options: GMRES + GAMG), solving with ``S``.
+        A: The Jacobian matrix (blocked: the owned rows of ``u``, then of each face unknown).
+        sizes: Owned entries of each block in order (``u`` first).
+        face_block_sizes: Components per face of each face unknown (e.g. ``(3, 6)``).
+        modes: Rigid-body modes of the displacement space (:func:`rigid_body_modes`).
+        reuse: See :class:`IterativeSolver`.
+    """
+
+    def __init__(self, ksp: PETSc.KSP, A: PETSc.Mat, sizes: list[int],
+                 face_block_sizes: list[int], modes: npt.NDArray[np.float64], reuse: bool = True):
+        self.A, self.comm = A, A.getComm().tompi4py()
+        start = A.getOwnershipRange()[0]
+        nu, nf = sizes[0], sum(sizes[1:])
+        comm = A.getComm()
+        self.is_u = PETSc.IS().createStride(nu, first=start, step=1, comm=comm)
+        self.is_f = PETSc.IS().createStride(nf, first=start + nu, step=1, comm=comm)
+        # the rows of each face in the local face numbering: [unknown 1 comps, unknown 2 ...]
+        faces = sizes[1] // face_block_sizes[0]
+        offsets = np.cumsum([0, *sizes[1:]])[:-1]
+        self._rows = np.hstack([off + np.arange(faces)[:, None] * k + np.arange(k)
+                                for off, k in zip(offsets, face_block_sizes, strict=True)])
+        self._faces, self._block = faces, self._rows.shape[1]
+        self._sub = {}  # the four blocks of J, extracted again after each assembly
+        self._inv = None  # A_ff⁻¹
+        self._T = self._P = self.S = None  # A_ff⁻¹ A_fu, A_uf A_ff⁻¹ A_fu, S
+        self._fresh = True
+        self._vecs = None
+        self._ksp, self._reuse, self._modes = ksp, reuse, modes
+        self._rtol = ksp.getTolerances()[0]
+        #: Passed to the :class:`IterativeSolver` of ``S``.
+        self.lagged = False
+        self.inner: IterativeSolver | None = None
+        self.near_nullspace_size = len(modes)
+
+    def _extract(self) -> None:
+        """The blocks of the assembled Jacobian, ``A_ff⁻¹`` and ``S`` (collective)."""
+        for name, (r, c) in {"uu": (self.is_u, self.is_u), "uf": (self.is_u, self.is_f),
+                             "fu": (self.is_f, self.is_u), "ff": (self.is_f, self.is_f)}.items():
+            self._sub[name] = self.A.createSubMatrix(r, c, submat=self._sub.get(name))
+        self._invert_faces(self._sub["ff"])
+        self._T = self._inv.matMult(self._sub["fu"], result=self._T)
+        self._P = self._sub["uf"].matMult(self._T, result=self._P)
+        if self.S is None:
+            self.S = self._sub["uu"].duplicate(copy=True)
+            self.S.axpy(-1.0, self._P, structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
+            self.inner = IterativeSolver(self._ksp, self.S, self._modes, reuse=self._reuse)
+            self.inner.lagged = self.lagged
+        else:
+            self.S.zeroEntries()
+            self.S.axpy(1.0, self._sub["uu"], structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+            self.S.axpy(-1.0, self._P, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+
+    def _invert_faces(self, F: PETSc.Mat) -> None:
+        """``A_ff⁻¹`` by batched dense inverses of the face blocks (local: no communication)."""
+        indptr, cols, vals = F.getValuesCSR()
+        start = F.getOwnershipRange()[0]  # the face block's own numbering
+        n, b = self._faces, self._block
+        face_of = np.empty(n * b, dtype=np.int64)
+        pos_of = np.empty(n * b, dtype=np.int64)
+        face_of[self._rows] = np.arange(n)[:, None]
+        pos_of[self._rows] = np.arange(b)[None, :]
+        rows = np.repeat(np.arange(len(indptr) - 1), np.diff(indptr))
+        local = cols - start
+        if np.any((local < 0) | (local >= n * b)) or np.any(face_of[local] != face_of[rows]):
+            raise RuntimeError("the face block of the Jacobian couples different faces")
+        blocks = np.zeros((n, b, b))
+        blocks[face_of[rows], pos_of[rows], pos_of[local]] = vals
+        inv = np.linalg.inv(blocks)
+        # local row r is face face_of[r] at position pos_of[r]: its entries are that row of the
+        # face's inverse, in the columns of the face's rows
+        r = np.arange(n * b)
+        csr = (np.arange(0, n * b * b + 1, b, dtype=PETSc.IntType),
+               (self._rows[face_of[r]] + start).ravel().astype(PETSc.IntType),
+               inv[face_of[r], pos_of[r], :].ravel())
+        if self._inv is None:
+            self._inv = PETSc.Mat().createAIJ(size=((n * b, None), (n * b, None)), csr=csr,
+                                              comm=self.A.getComm())
+        else:
+            self._inv.setValuesCSR(*csr)
+        self._inv.assemble()
+
+    def assembled(self, states: npt.NDArray | None) -> None:
+        """A new Jacobian is in the matrix: its blocks and ``S`` are formed at the next solve."""
+        self._fresh = True
+
+    def solve(self, F: PETSc.Vec, Y: PETSc.Vec, record, states: npt.NDArray | None) -> bool:
+        """``J Y = F`` through the Schur complement (see the class docstring)."""
+        if self._fresh:
+            self._extract()
+            self.inner.assembled(states)
+            self._fresh = False
+        Fu, Ff = F.getSubVector(self.is_u), F.getSubVector(self.is_f)
+        Yu, Yf = Y.getSubVector(self.is_u), Y.getSubVector(self.is_f)
+        if self._vecs is None:
+            self._vecs = (self._inv.createVecLeft(), self.S.createVecLeft())
+        w, g = self._vecs
+        self._inv.mult(Ff, w)  # A_ff⁻¹ F_f
+        self._sub["uf"].mult(w, g)
+        g.aypx(-1.0, Fu)  # F_u - A_uf A_ff⁻¹ F_f
+        ok = self.inner.solve(g, Yu, record, states)
+        self._sub["fu"].mult(Yu, w)
+        w.aypx(-1.0, Ff)  # F_f - A_fu Y_u
+        self._inv.mult(w, Yf)
+        F.restoreSubVector(self.is_u, Fu)
+        F.restoreSubVector(self.is_f, Ff)
+        Y.restoreSubVector(self.is_u, Yu)
+        Y.restoreSubVector(self.is_f, Yf)
+        return ok
+
+    @property
+    def tightest(self) -> float:
+        """The relative tolerance of the options (``ksp_rtol``)."""
+        return self._rtol
+
+    def set_tolerance(self, rtol: float) -> None:
+        """Relative tolerance of the next solve of ``S`` (:func:`forcing_term`)."""
+        rt, atol, dtol, max_it = self._ksp.getTolerances()
+        self._ksp.setTolerances(rtol=rtol, atol=atol, divtol=dtol, max_it=max_it)
+
+    def forget(self) -> None:
+        """Set the preconditioner up again at the next solve."""
+        if self.inner is not None:
+            self.inner.forget()
+
+    def destroy(self) -> None:
+        """Free the blocks, ``S``, the work vectors and the index sets."""
+        if self.inner is not None:
+            self.inner.destroy()
+        objs = [*self._sub.values(), self._inv, self._T, self._P, self.S, self.is_u, self.is_f,
+                *(self._vecs or ())]
+        for obj in objs:
+            if obj is not None:
+                obj.destroy()
+
+
 def linear_strategy(ksp: PETSc.KSP, A: PETSc.Mat, prefix: str, *, reuse: bool, stale: bool,
-                    modes: Callable[[], npt.NDArray[np.float64]] | None = None
-                    ) -> LinearStrategy:
+                    modes: Callable[[], npt.NDArray[np.float64]] | None = None,
+                    blocks: tuple[list[int], list[int]] | None = None) -> LinearStrategy:
     """The strategy for the KSP as its options configured it (call with the options pushed).
 
     Args:
@@ -499,9 +734,14 @@ def linear_strategy(ksp: PETSc.KSP, A: PETSc.Mat, prefix: str, *, reuse: bool, s
         prefix: Options prefix of the Newton.
         reuse: Reuse a factorization or preconditioner while the Jacobian is unchanged.
         stale: Try stale-factorization GMRES (direct).
-        modes: Computes the rigid-body modes of a displacement-only Jacobian; called for a
-            Krylov KSP only, whose preconditioner may use them (GAMG).
+        modes: Computes the rigid-body modes of the displacements; called for a Krylov KSP
+            only, whose preconditioner may use them (GAMG).
+        blocks: For a Jacobian with face unknowns: the owned entries of each block (``u``
+            first) and the components per face of each face unknown; a Krylov KSP then solves
+            the displacement Schur complement (:class:`FaceElimination`).
     """
     if is_direct(ksp):
         return DirectSolver(ksp, A, prefix, reuse=reuse, stale=stale)
+    if blocks is not None:
+        return FaceElimination(ksp, A, blocks[0], blocks[1], modes(), reuse=reuse)
     return IterativeSolver(ksp, A, None if modes is None else modes(), reuse=reuse)

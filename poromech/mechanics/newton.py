@@ -56,7 +56,7 @@ from dolfinx.fem.petsc import assemble_residual, assign, create_matrix, create_v
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from poromech.mechanics.linear import LinearStrategy, linear_strategy
+from poromech.mechanics.linear import LinearStrategy, forcing_term, linear_strategy
 from poromech.petsc_options import PrefixedOptions, reason_name
 
 __all__ = ["ConvergenceError", "NewtonRecord", "SemiSmoothNewton", "DEFAULT_OPTIONS"]
@@ -156,6 +156,13 @@ class SemiSmoothNewton:
         modes: Computes the rigid-body modes of a displacement-only system
             (:func:`~poromech.mechanics.linear.rigid_body_modes`); called when the options
             configure a Krylov solve, whose matrix then carries them as near-nullspace.
+        eliminate_faces: A Krylov solve works on the displacement Schur complement, the face
+            unknowns (every block after the first) eliminated face by face
+            (:class:`~poromech.mechanics.linear.FaceElimination`).
+        inexact: A Krylov solve of the direction is only as accurate as the Newton can use
+            (:func:`~poromech.mechanics.linear.forcing_term`), and with ``reuse_jacobian`` keeps
+            its preconditioner across Jacobians while that pays (``lagged``); False for a linear
+            problem, solved in one iteration to the options' ``ksp_rtol``.
 
     Attributes:
         A: The Jacobian matrix.
@@ -181,6 +188,8 @@ class SemiSmoothNewton:
         states: Callable[[], np.ndarray] | None = None,
         states_determine_jacobian: bool = False,
         modes: Callable[[], np.ndarray] | None = None,
+        eliminate_faces: bool = False,
+        inexact: bool = False,
     ):
         self.F, self.J, self.u, self.bcs = list(F), [list(r) for r in J], list(unknowns), list(bcs)
         self.comm = self.u[0].function_space.mesh.comm
@@ -202,8 +211,12 @@ class SemiSmoothNewton:
         self._jacobian_states = None  # active set of the assembled Jacobian
         self.condensed = None
         self.prefix = prefix
+        self._eliminate_faces = eliminate_faces
+        self.inexact = inexact
         self.snes, self.linear = self._create_snes(prefix, options or {}, stale_factorization,
                                                    modes)
+        if inexact and reuse_jacobian and hasattr(self.linear, "lagged"):
+            self.linear.lagged = True  # a Krylov solve keeps its preconditioner while it pays
         self._step = self.snes.getPythonContext() if self._is_python() else None
         self.record = NewtonRecord()
 
@@ -234,13 +247,21 @@ class SemiSmoothNewton:
             snes.setJacobian(self._jacobian, self.A, self.A)
             snes.setFromOptions()
             linear = linear_strategy(snes.getKSP(), self.A, prefix, reuse=self.reuse_jacobian,
-                                     stale=stale, modes=modes)
+                                     stale=stale, modes=modes, blocks=self._face_blocks())
         if snes.getType() == PETSc.SNES.Type.PYTHON:
             snes.setPythonContext(_NewtonStep(self))
         snes.setConvergenceTest(self._converged)
         snes.setMonitor(self._monitor)
         self.A.setOptionsPrefix(f"{prefix}A_")
         return snes, linear
+
+    def _face_blocks(self) -> tuple[list[int], list[int]] | None:
+        """Owned sizes of the blocks and components per face of the face unknowns, or None."""
+        if not self._eliminate_faces or len(self.u) == 1:
+            return None
+        maps = [(f.function_space.dofmap.index_map, f.function_space.dofmap.index_map_bs)
+                for f in self.u]
+        return [m.size_local * bs for m, bs in maps], [bs for _, bs in maps[1:]]
 
     def destroy(self) -> None:
         """Free PETSc objects."""
@@ -448,6 +469,11 @@ class _NewtonStep:
         s = self.s
         snes.computeJacobian(X, s.A, s.A)
         t0 = time.perf_counter()
+        if s.inexact and hasattr(s.linear, "set_tolerance"):  # as accurate as Newton needs
+            res = s.record.residuals
+            target = snes.getTolerances()[0] * s.reference_norm
+            s.linear.set_tolerance(forcing_term(res[-1], res[-2] if len(res) > 1 else None,
+                                                target, s.linear.tightest))
         solved = s.linear.solve(F, Y, s.record, s.active_set)
         s.record.time_linear += time.perf_counter() - t0
         if not solved:

@@ -36,7 +36,7 @@ from poromech.mechanics.predictor import StepPredictor
 from poromech.mesh.entities import fracture_segments
 from poromech.mesh.fractured import FracturedMesh
 from poromech.physics import Keyed, StepResult
-from poromech.scene.resources import mechanics_solver
+from poromech.scene.resources import ELIMINATED_FORMULATIONS, mechanics_solver
 from poromech.scene.schema import Scene
 from poromech.timing import Timer
 
@@ -164,6 +164,8 @@ class MechanicsPhysics:
             # piecewise affine and no other coefficient of it (E, ν) changes in time
             constant = not (material.young.depends_on_time or material.poisson.depends_on_time)
             self.linear_solver = mechanics_solver(scene, model.dof_count())
+            eliminate = (self.linear_solver == "iterative"
+                         and model.params.formulation in ELIMINATED_FORMULATIONS)
             options = linear_solver_options(self.linear_solver, model.params.formulation)
             self.solver = SemiSmoothNewton(
                 model.F, model.J, model.unknowns, model.bcs, prefix="mech_",
@@ -176,7 +178,10 @@ class MechanicsPhysics:
                 stale_factorization=scene.solver.stale_factorization and not singular,
                 states=model.active_set if model.faces is not None else None,
                 states_determine_jacobian=constant and model.params.piecewise_affine,
-                modes=(lambda: rigid_body_modes(model.V)) if len(model.unknowns) == 1 else None,
+                modes=(lambda: rigid_body_modes(model.V)) if (len(model.unknowns) == 1
+                                                               or eliminate) else None,
+                eliminate_faces=eliminate,
+                inexact=not model.linear,
             )
         self._log_linear_solver()
         self.linear_totals = {"krylov_iterations": 0, "preconditioner_setups": 0,

@@ -100,10 +100,10 @@ def _check_mechanics(scene: Scene, geo: PlaneGeometry) -> None:
     if (scene.solver.linear_solver == "iterative"
             and scene.contact.formulation not in ITERATIVE_FORMULATIONS):
         raise ConfigError(
-            f"scene key 'solver.linear_solver' = 'iterative' needs a system of displacements "
-            f"only (contact.formulation {' or '.join(ITERATIVE_FORMULATIONS)}): "
-            f"{scene.contact.formulation} adds multipliers or face averages, a saddle-point "
-            "system for a direct solve (direct or auto)")
+            f"scene key 'solver.linear_solver' = 'iterative' is not available for "
+            f"contact.formulation {scene.contact.formulation} (its multiplier block is singular "
+            f"on faces in contact, a saddle-point system for a direct solve): use direct or "
+            f"auto, or formulation {', '.join(ITERATIVE_FORMULATIONS[1:])}")
 
 
 def _check_mechanics_data(scene: Scene, geo: PlaneGeometry, times) -> None:

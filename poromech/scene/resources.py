@@ -47,6 +47,7 @@ from poromech.geometry.plane import PlaneGeometry
 from poromech.scene.schema import ITERATIVE_FROM_UNKNOWNS_3D, scene_dimension
 
 __all__ = [
+    "ELIMINATED_FORMULATIONS",
     "ITERATIVE_FORMULATIONS",
     "ITERATIVE_FROM_UNKNOWNS_3D",
     "ResourceError",
@@ -204,16 +205,21 @@ def estimate_cells(geo: PlaneGeometry, size: float, fracture_size: float, tip_si
     return CELLS_PER_AREA * density * 4.0**refinement
 
 
-#: Contact formulations whose Jacobian has displacement unknowns only, the systems that GAMG
-#: with the rigid-body modes preconditions; the others add multipliers or face averages
-#: (saddle-point systems) and are solved directly.
-ITERATIVE_FORMULATIONS = ("none", "nitsche")
+#: Contact formulations solved by a Krylov method with GAMG and the rigid-body modes: those with
+#: displacement unknowns only, and those whose face unknowns (averages, and the multipliers of
+#: ``stabilized_mixed``) are eliminated exactly face by face (:data:`ELIMINATED_FORMULATIONS`).
+#: ``mixed`` is solved directly: its multiplier rows have no multiplier derivative on faces in
+#: contact, so its face block cannot be inverted.
+ITERATIVE_FORMULATIONS = ("none", "nitsche", "mean_nitsche", "stabilized_mixed")
+#: Formulations whose iterative solve works on the displacement Schur complement
+#: (:class:`~poromech.mechanics.linear.FaceElimination`).
+ELIMINATED_FORMULATIONS = ("mean_nitsche", "stabilized_mixed")
 
 
 def mechanics_solver(scene, unknowns: float) -> str:
     """``direct`` or ``iterative``: ``solver.linear_solver``, or chosen by dimension and size.
 
-    ``auto`` is iterative for a 3D displacement-only system (:data:`ITERATIVE_FORMULATIONS`) of
+    ``auto`` is iterative for a 3D system of a formulation of :data:`ITERATIVE_FORMULATIONS` of
     more than :data:`ITERATIVE_FROM_UNKNOWNS_3D` unknowns, direct otherwise (every 2D scene).
     Called before meshing with the estimated unknowns (memory) and after it with the actual
     ones (the solver that runs).
