@@ -200,7 +200,9 @@ def _slab_raw(raw: Mapping, slab: SlabGeometry, fractures: list[list[list[float]
     raw["mesh"] = {"size": slab.upper[1] - slab.lower[1]}
     solver = dict(raw.get("solver") or {})
     if solver.get("linear_solver", "auto") == "auto":
-        solver["linear_solver"] = "direct"  # GAMG's coarsening stalls on one layer of cells
+        # the 2D scene's solver: direct (faster at slab sizes; with Jacobi smoothing, GAMG
+        # stalled on this one layer of cells, hence SOR for contact Jacobians)
+        solver["linear_solver"] = "direct"
     raw["solver"] = solver
     return raw
 
@@ -212,7 +214,7 @@ def slab_scene(raw: Mapping, slab: SlabGeometry) -> Scene:
     conditions go to the box faces of their edges (a 2D vector ``[v_x, v_y]`` becomes
     ``[v_x, ·, v_y]``, the name ``y`` in expressions becomes ``z``); ``u_y = 0`` is imposed on
     front and back. Contact, material, time stepping, solver and output are kept, except that
-    an ``auto`` linear solver is direct (the iterative one stalls on one layer of cells). The
+    an ``auto`` linear solver is direct, as in 2D (faster at these sizes). The
     scene's ``mesh`` key only holds the slab thickness (the mesh is :func:`slab_mesh`'s).
 
     The 3D checks of a box geometry are made for gmsh and require planar fractures: they are

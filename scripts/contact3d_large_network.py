@@ -1,0 +1,202 @@
+"""A network of eleven intersecting fractures in contact, about a million P2 unknowns.
+
+Scene: ``configs/network3d_large.yaml`` (a 2 m box, four X pairs of discs, a T and a polygon
+reaching the front face; bottom fixed, top pushed down in step 1 and sheared along x in steps
+2-5; Coulomb friction F = 0.5, P2). Each formulation runs in its own process(es) (``mpirun -n R``
+for R ranks) with the scene's linear solver ``auto``: GMRES + GAMG with the rigid-body modes for
+``nitsche``; the same on the displacement Schur complement for ``mean_nitsche`` and
+``stabilized_mixed`` (face unknowns eliminated face by face); MUMPS for ``mixed``, whose face
+block is singular in contact (it is run only where MUMPS fits: ``--levels`` gives the mesh
+scale, 1 = the scene's mesh).
+
+Columns: ``dofs`` unknowns; ``newton`` Newton iterations per load step; ``krylov`` Krylov
+iterations in total; ``pc_setups`` GAMG set-ups (or factorizations); ``time_*`` wall seconds
+(rank maximum) of meshing, set-up, assembly, linear solves (with the ``pc`` set-ups) and the
+whole run; ``peak_gb`` the summed max RSS of the ranks; ``load`` the 1-minute load average (2
+shared cores: wall times are upper bounds).
+
+Run::
+
+    python scripts/contact3d_large_network.py --ranks 2 --formulations nitsche
+    python scripts/contact3d_large_network.py --ranks 2 --formulations mixed --levels 2 --append
+    python scripts/contact3d_large_network.py --report    # redraw docs/mechanics3d/large_network.md
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import datetime
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+OUT = ROOT / "docs" / "mechanics3d"
+SCENE = ROOT / "configs" / "network3d_large.yaml"
+FORMULATIONS = ("nitsche", "mean_nitsche", "stabilized_mixed", "mixed")
+FIELDS = ["formulation", "level", "ranks", "solver", "cells", "fracture_faces", "dofs", "status",
+          "newton", "newton_total", "krylov", "pc_setups", "time_mesh", "time_setup",
+          "time_assembly", "time_linear", "time_pc", "time_total", "peak_gb", "load"]
+
+
+def overrides(formulation: str, level: float) -> list[str]:
+    """``--set`` overrides: the formulation and the mesh scaled by ``level``."""
+    sets = [f"contact.formulation={formulation}", "output.xdmf=false"]
+    if level != 1:
+        sets += [f"mesh.size={0.085 * level:g}", f"mesh.fracture_size={0.028 * level:g}"]
+    return sets
+
+
+def run_case(formulation: str, level: float, out: Path) -> None:
+    """Solve one case (all ranks); rank 0 writes ``out`` (a JSON row)."""
+    import dolfinx_solver  # noqa: F401
+
+    from mpi4py import MPI
+
+    from poromech.run import run_scene
+    from poromech.scene.loading import load_scene
+
+    comm = MPI.COMM_WORLD
+    load0 = os.getloadavg()[0]
+    scene = load_scene(SCENE, overrides(formulation, level))
+    with tempfile.TemporaryDirectory() as tmp:
+        work = comm.bcast(tmp if comm.rank == 0 else None)
+        try:
+            summary = run_scene(scene, Path(work) / "run", comm)
+            status = summary["status"]
+        except Exception as err:  # a failed case is a row too
+            summary, status = None, f"error: {str(err).splitlines()[0][:200]}"
+        comm.barrier()
+    peak = comm.allreduce(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024.0)
+    if comm.rank != 0:
+        return
+    row = {"formulation": formulation, "level": level, "ranks": comm.size, "status": status,
+           "peak_gb": peak / 1e9, "load": 0.5 * (load0 + os.getloadavg()[0])}
+    if summary is not None:
+        wall, records = summary["wall_time"], summary["solves"]
+        row.update({
+            "solver": summary["linear_solver"]["kind"], "cells": summary["mesh"]["cells"],
+            "fracture_faces": summary["mesh"]["fracture_faces"], "dofs": summary["dofs"],
+            "newton": "/".join(str(r["iterations"]) for r in records),
+            "newton_total": sum(r["iterations"] for r in records),
+            "krylov": summary["linear_solver"]["krylov_iterations"],
+            "pc_setups": summary["linear_solver"]["preconditioner_setups"],
+            "time_mesh": wall.get("mesh", 0.0), "time_setup": wall.get("setup", 0.0),
+            "time_assembly": wall.get("assembly", 0.0),
+            "time_linear": wall.get("linear_solve", 0.0),
+            "time_pc": summary["linear_solver"].get("time_preconditioner", 0.0),
+            "time_total": wall["total"]})
+    out.write_text(json.dumps(row))
+
+
+def launch(formulation: str, level: float, ranks: int) -> dict:
+    """One case in its own process(es); its row."""
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "row.json"
+        cmd = [sys.executable, __file__, "--case", formulation, str(level), str(out)]
+        if ranks > 1:
+            cmd = [str(Path(sys.executable).with_name("mpirun")), "-n", str(ranks), *cmd]
+        print(f"{formulation} level {level} on {ranks} rank(s) ...", flush=True)
+        t0 = time.perf_counter()
+        proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
+        if not out.exists():
+            tail = (proc.stderr or proc.stdout).strip().splitlines()[-1:] or ["?"]
+            return {"formulation": formulation, "level": level, "ranks": ranks,
+                    "status": f"error: {tail[0][:200]}"}
+        row = json.loads(out.read_text())
+    print(f"  {row.get('dofs')} dofs, Newton {row.get('newton')}, {row.get('krylov')} Krylov, "
+          f"{time.perf_counter() - t0:.0f} s, {row['peak_gb']:.1f} GB, {row['status']}",
+          flush=True)
+    return row
+
+
+def fmt(v) -> str:
+    return f"{v:.3g}" if isinstance(v, float) else str(v)
+
+
+def read_rows() -> list[dict]:
+    path = OUT / "large_network.csv"
+    if not path.exists():
+        return []
+    with open(path) as fh:
+        lines = [ln for ln in fh if not ln.startswith("#")]
+    return list(csv.DictReader(lines))
+
+
+def report(rows: list[dict], commands: list[str]) -> None:
+    OUT.mkdir(parents=True, exist_ok=True)
+    stamp = "; ".join(f"`{c}`" for c in commands)
+    with open(OUT / "large_network.csv", "w", newline="") as fh:
+        for c in commands:
+            fh.write(f"# {c}\n")
+        w = csv.DictWriter(fh, FIELDS, extrasaction="ignore")
+        w.writeheader()
+        w.writerows(rows)
+    keys = [k for k in FIELDS if k not in ("fracture_faces",)]
+    lines = [f"# Eleven intersecting fractures in contact, about a million P2 unknowns\n\n"
+             f"Generated by {stamp} ({datetime.date.today()}). See the docstring of "
+             "`scripts/contact3d_large_network.py` for the scene and the columns.\n\n"
+             "| " + " | ".join(keys) + " |\n|" + "---|" * len(keys) + "\n"]
+    for r in rows:
+        lines.append("| " + " | ".join(fmt(_number(r.get(k, ""))) for k in keys) + " |\n")
+    done = [r for r in rows if r.get("status") == "completed" and int(r.get("dofs") or 0) >= 1e6]
+    if done:
+        best = min(done, key=lambda r: float(r["time_total"]))
+        total = float(best["time_total"])
+        lines.append(f"\nFastest at ≥ 1 million unknowns: {best['formulation']} on "
+                     f"{best['ranks']} rank(s), {total:.0f} s for the 5 load steps (target "
+                     f"600 s: {'met' if total <= 600 else 'not met'}), peak "
+                     f"{float(best['peak_gb']):.1f} GB.\n")
+    (OUT / "large_network.md").write_text("".join(lines))
+
+
+def _number(v):
+    if isinstance(v, str):
+        try:
+            return int(v)
+        except ValueError:
+            try:
+                return float(v)
+            except ValueError:
+                return v
+    return v
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--formulations", nargs="+", default=list(FORMULATIONS),
+                   choices=FORMULATIONS)
+    p.add_argument("--levels", nargs="+", type=float, default=[1.0],
+                   help="mesh scale factors (1: the scene's mesh, larger: coarser)")
+    p.add_argument("--ranks", type=int, default=2)
+    p.add_argument("--append", action="store_true", help="add to the existing rows")
+    p.add_argument("--report", action="store_true", help="rewrite the Markdown from the CSV")
+    p.add_argument("--case", nargs=3, help=argparse.SUPPRESS)
+    args = p.parse_args()
+    if args.case:
+        run_case(args.case[0], float(args.case[1]), Path(args.case[2]))
+        return
+    old = read_rows()
+    path = OUT / "large_network.csv"
+    commands = [ln[2:].strip() for ln in open(path) if ln.startswith("# ")] if path.exists() \
+        else []
+    if args.report:
+        report(old, commands)
+        return
+    rows = old if args.append else []
+    commands = commands if args.append else []
+    for f in args.formulations:
+        for level in args.levels:
+            rows.append(launch(f, level, args.ranks))
+    command = "python scripts/contact3d_large_network.py " + " ".join(sys.argv[1:])
+    report(rows, [*commands, command])
+
+
+if __name__ == "__main__":
+    main()
