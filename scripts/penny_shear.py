@@ -18,12 +18,14 @@ parallel to τ by ``16 (1 - ν²) τ / (π (2 - ν) E) √(a² - r²)`` in an in
   upper bounds); ``states``: the active-set codes found at the contact points (1 closed,
   0 open, 3 closed and slipping).
 
-Cases: ``nitsche`` θ = -1 and ``mean_nitsche`` (θ = -1), frictionless, P1 and P2; ``nitsche``
+Cases: the four formulations (``nitsche``, ``mean_nitsche``, ``stabilized_mixed`` with θ = -1,
+``mixed``), frictionless, P1 and P2 on every level (the scene's ``auto`` linear solver: MUMPS
+below 20k unknowns and for ``mixed``, GMRES + GAMG above); ``nitsche``
 θ = 0 and θ = 1 on the P2 levels; Coulomb with F = 0.25 (the crack slips under τ - Fσ = 0.5
 MPa: half the frictionless slip) with ``nitsche`` θ = -1, P2; the box effect (half-width 10a
 instead of 5a) on one P2 mesh.
 
-Run (about 12 minutes on 2 cores; every case in its own process)::
+Run (about 25 minutes on 2 cores; every case in its own process)::
 
     python scripts/penny_shear.py            # -> docs/mechanics3d/penny_shear.{csv,md,png}
     python scripts/penny_shear.py --quick    # the two coarsest levels only
@@ -47,8 +49,8 @@ OUT = ROOT / "docs" / "mechanics3d"
 SCENE = ROOT / "configs" / "penny_shear.yaml"
 #: Mesh scale factors, coarse to fine, per degree.
 SCALES = {1: (1.4, 1.0, 0.7, 0.5), 2: (1.4, 1.0, 0.7, 0.5)}
-#: mean_nitsche adds face averages: a saddle-point system for MUMPS, kept to smaller sizes.
-MEAN_SCALES = {1: (1.4, 1.0, 0.7, 0.5), 2: (1.4, 1.0, 0.7)}
+#: The four formulations (θ = -1 where there is one), each on every level of both degrees.
+FORMULATIONS = ("nitsche", "mean_nitsche", "stabilized_mixed", "mixed")
 FIELDS = ["case", "formulation", "theta", "friction", "degree", "scale", "box", "cells",
           "fracture_faces", "dofs", "l2", "l2_n", "transverse", "centre", "newton", "krylov",
           "solver", "states", "time_total", "load"]
@@ -60,9 +62,10 @@ def overrides(case: dict) -> list[str]:
     sets = [f"degree={case['degree']}", f"mesh.size={2 * s:g}", f"mesh.fracture_size={0.2 * s:g}",
             f"mesh.tip_size={0.05 * s:g}", "mesh.transition=3",
             f"geometry.domain.box=[{-box}, {-box}, {-box}, {box}, {box}, {box}]",
-            f"contact.formulation={case['formulation']}", f"contact.theta={case['theta']}",
-            f"contact.friction={case['friction']}", "output.xdmf=false",
-            "output.fractures_csv=false"]
+            f"contact.formulation={case['formulation']}", f"contact.friction={case['friction']}",
+            "output.xdmf=false", "output.fractures_csv=false"]
+    if case["formulation"] != "mixed":  # mixed has no θ
+        sets.append(f"contact.theta={case['theta']}")
     if case["friction"] == "coulomb":
         sets.append("contact.friction_coefficient=0.25")
     return sets
@@ -114,10 +117,9 @@ def cases(quick: bool) -> list[dict]:
     out = []
     base = {"friction": "frictionless", "theta": -1, "box": 5.0}
     for d in (1, 2):
-        out += [{**base, "case": "nitsche", "formulation": "nitsche", "degree": d, "scale": s}
-                for s in cut(SCALES[d])]
-        out += [{**base, "case": "mean_nitsche", "formulation": "mean_nitsche", "degree": d,
-                 "scale": s} for s in cut(MEAN_SCALES[d])]
+        for f in FORMULATIONS:
+            out += [{**base, "case": f, "formulation": f, "degree": d, "scale": s}
+                    for s in cut(SCALES[d])]
     for theta in (0, 1):
         out += [{**base, "case": f"nitsche theta {theta}", "formulation": "nitsche",
                  "theta": theta, "degree": 2, "scale": s} for s in cut(SCALES[2])]

@@ -111,7 +111,10 @@ def test_segedin_slip_converges():
     for out in (coarse, fine):
         assert out["err"]["l2_n"] < 1e-3  # closed: [[u]]_n ≈ 0 (β_n large)
         assert np.all(out["codes"] == 1)  # in contact
-        assert out["record"].iterations == 1  # frictionless in contact: one linear solve
+        # frictionless in contact: one linear solve; a Krylov solve (the fine mesh) is inexact
+        # at first (poromech.mechanics.linear.forcing_term): one more
+        krylov = out["record"].linear_iterations > 0
+        assert out["record"].iterations == (2 if krylov else 1)
 
 
 def test_segedin_slip_is_parallel_to_the_shear():
