@@ -315,8 +315,8 @@ def _trends(rows: list[dict]) -> str:
     for d in (2, 1):
         items = []
         for name in NAMES[1:]:
-            seq = sorted((r for r in rows if r["case"] == name and r["degree"] == d),
-                         key=lambda r: -r["scale"])
+            seq = sorted((r for r in rows if r["case"] == name and r["degree"] == d
+                          and r["converged"]), key=lambda r: -r["scale"])
             if len(seq) > 1:
                 items.append(f"{name} {seq[0]['jump_diff']:.2g} → {seq[-1]['jump_diff']:.2g}")
         if items:
