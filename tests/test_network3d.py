@@ -1,8 +1,8 @@
 """A 3D fracture network in frictional contact (``configs/network3d.yaml``) on a coarse P1 mesh.
 
-Five fractures make an X, a T and a fracture reaching the box; compression then shear in four
-load steps, Coulomb friction F = 0.5, Nitsche θ = -1. Checked: every fracture is meshed, Newton
-stays within 15 iterations per step, the written states agree with the written tractions and
+Seven fractures make an X, a T, a fracture reaching the box and a kink; compression then shear
+in four load steps, Coulomb friction F = 0.5, Nitsche θ = -1. Checked: every fracture is meshed,
+Newton stays within 15 iterations per step, the written states agree with the written tractions and
 jumps, ``mean_nitsche`` gives nearly the same jumps, and 2 ranks write the same table as 1.
 """
 
@@ -21,10 +21,10 @@ from poromech.run import run_scene
 from poromech.scene.loading import load_scene
 
 NETWORK = ROOT / "configs" / "network3d.yaml"
-#: About 1.7k tetrahedra, 110 fracture faces, 1.4k unknowns: a second per run.
+#: About 1.9k tetrahedra, 138 fracture faces, 1.5k unknowns: a second per run.
 COARSE = ["degree=1", "mesh.size=0.75", "mesh.fracture_size=0.25", "output.xdmf=false",
           "output.checkpoint=false"]
-FRACTURES = {"x1", "x2", "bar", "stem", "edge"}
+FRACTURES = {"x1", "x2", "bar", "stem", "edge", "kink_a", "kink_b"}
 F = 0.5
 NUMBERS = ("x", "y", "z", "jump_n", "jump_tx", "jump_ty", "jump_tz", "traction_n", "traction_t")
 
@@ -57,7 +57,7 @@ def by_time(rows: list[dict]) -> dict[float, dict]:
 def test_network_runs_and_meshes_every_fracture(network):
     summary, rows = network
     assert summary["status"].startswith("converged")
-    assert summary["mesh"]["fracture_faces"] == 110
+    assert summary["mesh"]["fracture_faces"] == 138
     assert [s["step"] for s in summary["solves"]] == [1, 2, 3, 4]
     steps = by_time(rows)
     assert list(steps) == [1.0, 2.0, 3.0, 4.0]
@@ -71,14 +71,16 @@ def test_network_newton_per_step(network):
     its = [s["iterations"] for s in summary["solves"]]
     assert all(s["converged"] for s in summary["solves"])
     assert max(its) <= 15
-    # measured 6, 7, 4, 4; a different BLAS may move a step by one
-    assert all(abs(a - b) <= 1 for a, b in zip(its, [6, 7, 4, 4], strict=True))
+    # measured 5, 8, 4, 6; a different BLAS may move a step by one
+    assert all(abs(a - b) <= 1 for a, b in zip(its, [5, 8, 4, 6], strict=True))
 
 
 def test_network_states_match_tractions_and_jumps(network):
     """Open faces: no normal traction, jump_n ≤ 0 up to Nitsche's O(1/β) penetration; stick:
     |T_τ| < F|T_n| and a slip increment small against the slipping faces' (Nitsche's stick is
-    a penalty, O(1/β_τ)); slip: |T_τ| = F|T_n| within 1% (|mean T_τ| ≤ mean |T_τ|)."""
+    a penalty, O(1/β_τ): measured 1-5% of the slipping faces' mean, the most in step 4, where the
+    kink's falling half and part of x1 have opened); slip: |T_τ| = F|T_n| within 1%
+    (|mean T_τ| ≤ mean |T_τ|)."""
     _, rows = network
     steps = by_time(rows)
     seen, prev = set(), None
@@ -95,7 +97,7 @@ def test_network_states_match_tractions_and_jumps(network):
         np.testing.assert_allclose(tt[sl], F * np.abs(tn[sl]), rtol=0.01)
         if prev is not None:
             inc = np.linalg.norm(jt - prev, axis=1)
-            assert inc[s].mean() < 0.05 * inc[sl].mean()
+            assert inc[s].mean() < 0.1 * inc[sl].mean()
             assert inc[s].max() < 0.2 * inc.max()
         prev = jt
     assert seen == {"open", "stick", "slip"}
