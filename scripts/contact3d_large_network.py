@@ -49,7 +49,7 @@ def overrides(formulation: str, level: float) -> list[str]:
     """``--set`` overrides: the formulation and the mesh scaled by ``level``."""
     sets = [f"contact.formulation={formulation}", "output.xdmf=false"]
     if level != 1:
-        sets += [f"mesh.size={0.085 * level:g}", f"mesh.fracture_size={0.028 * level:g}"]
+        sets += [f"mesh.size={0.08 * level:g}", f"mesh.fracture_size={0.0265 * level:g}"]
     return sets
 
 
