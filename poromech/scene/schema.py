@@ -306,8 +306,9 @@ class TimeSpec:
         return float(self.times[-1]) if self.times else float(self.final)
 
 
-#: ``solver.linear_solver: auto`` solves a 3D displacement-only system of more unknowns than
-#: this with CG + GAMG (:mod:`poromech.scene.resources` has the measurements behind it).
+#: ``solver.linear_solver: auto`` solves a 3D system (every formulation but ``mixed``) of more
+#: unknowns than this with a Krylov method + GAMG (:mod:`poromech.scene.resources` has the
+#: measurements behind it).
 ITERATIVE_FROM_UNKNOWNS_3D = 20_000
 
 
@@ -319,8 +320,9 @@ class Solver:
         default="auto",
         metadata=doc("linear solver of the mechanics: direct (MUMPS LU), iterative (CG + GAMG "
                      "with the rigid-body modes of the cracked space as near-nullspace; GMRES "
-                     "for Nitsche contact; not for the formulations with multipliers or face "
-                     "averages), or auto: direct in 2D, iterative in 3D above "
+                     "with an inexact Newton for contact, on the displacement Schur complement "
+                     "for mean_nitsche and stabilized_mixed; not for mixed), or auto: direct "
+                     "in 2D and for mixed, iterative in 3D above "
                      f"{ITERATIVE_FROM_UNKNOWNS_3D:,} unknowns (counted after meshing); "
                      "solver.petsc options override either's defaults"),
     )
