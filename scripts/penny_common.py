@@ -12,6 +12,10 @@ import subprocess
 import sys
 from pathlib import Path
 
+from report_common import fmt
+
+__all__ = ["child_case", "error_figure", "fmt"]
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -22,11 +26,6 @@ def child_case(script: str, sets: list[str]) -> dict:
     if proc.returncode != 0:
         raise RuntimeError(proc.stderr[-2000:])
     return json.loads(proc.stdout.strip().splitlines()[-1])
-
-
-def fmt(v) -> str:
-    """Three significant digits for floats, the value otherwise."""
-    return f"{v:.3g}" if isinstance(v, float) else str(v)
 
 
 def error_figure(curves: list[tuple[str, str, str, list[dict]]], ylabel: str, title: str,

@@ -204,10 +204,8 @@ def test_coulomb_jacobian_at_rest_is_finite():
         A.destroy()
 
 
-@pytest.mark.mpi
-@pytest.mark.parametrize("formulation", ["nitsche", "mixed"])
-def test_segedin_on_two_ranks_equals_one_rank(formulation):
-    sets = COARSE + COULOMB_SLIP + [f"contact.formulation={formulation}"]
+def two_ranks(path, overrides) -> dict:
+    """Jump errors of a scene on 2 ranks, with the Newton and Krylov iterations."""
     code = f"""
 import json
 import dolfinx_solver
@@ -215,15 +213,23 @@ from mpi4py import MPI
 from poromech.run import Run
 from poromech.scene.loading import load_scene
 from poromech.verification.jumps import exact_jump, jump_errors
-scene = load_scene({str(SHEAR)!r}, {sets!r})
+scene = load_scene({str(path)!r}, {overrides!r})
 with Run(scene) as run:
     run.execute()
     err = jump_errors(run.physics.model.u, run.physics.fm, exact_jump(scene))
     err["iterations"] = run.physics.solver.record.iterations
+    err["krylov"] = run.physics.solver.record.linear_iterations
 if MPI.COMM_WORLD.rank == 0:
     print(json.dumps(err))
 """
-    two = run_parallel(code)
+    return run_parallel(code)
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("formulation", ["nitsche", "mixed"])
+def test_segedin_on_two_ranks_equals_one_rank(formulation):
+    sets = COARSE + COULOMB_SLIP + [f"contact.formulation={formulation}"]
+    two = two_ranks(SHEAR, sets)
     one = solve(SHEAR, sets)
     for key in ("l2", "l2_n", "l2_t", "max"):
         assert two[key] == pytest.approx(one["err"][key], rel=1e-8, abs=1e-12)
@@ -237,22 +243,7 @@ def test_face_elimination_on_two_ranks_equals_one_rank():
     as on 1 and as MUMPS, to the inexact Newton's tolerance."""
     sets = COARSE + COULOMB_SLIP + ["contact.formulation=stabilized_mixed"]
     iterative = sets + ["solver.linear_solver=iterative"]
-    code = f"""
-import json
-import dolfinx_solver
-from mpi4py import MPI
-from poromech.run import Run
-from poromech.scene.loading import load_scene
-from poromech.verification.jumps import exact_jump, jump_errors
-scene = load_scene({str(SHEAR)!r}, {iterative!r})
-with Run(scene) as run:
-    run.execute()
-    err = jump_errors(run.physics.model.u, run.physics.fm, exact_jump(scene))
-    err["krylov"] = run.physics.solver.record.linear_iterations
-if MPI.COMM_WORLD.rank == 0:
-    print(json.dumps(err))
-"""
-    two = run_parallel(code)
+    two = two_ranks(SHEAR, iterative)
     one, direct = solve(SHEAR, iterative), solve(SHEAR, sets)
     assert two["krylov"] > 0 and one["record"].linear_iterations > 0
     for key in ("l2", "l2_t", "max"):

@@ -145,6 +145,13 @@ LAG_FACTOR = 1.5
 LAG_EXTRA = 5
 
 
+def _set_tolerances(ksp: PETSc.KSP, rtol: float | None = None, max_it: int | None = None) -> None:
+    """Change the relative tolerance and/or the iteration limit of ``ksp``, keep the others."""
+    rt, atol, dtol, it = ksp.getTolerances()
+    ksp.setTolerances(rtol=rt if rtol is None else rtol, atol=atol, divtol=dtol,
+                      max_it=it if max_it is None else max_it)
+
+
 def _decades(rtol: float) -> float:
     """Decades of residual reduction a relative tolerance asks for (at least 1)."""
     return max(1.0, -np.log10(max(rtol, 1e-300)))
@@ -499,8 +506,7 @@ class IterativeSolver:
 
     def set_tolerance(self, rtol: float) -> None:
         """Relative tolerance of the next solve (:func:`forcing_term`)."""
-        rt, atol, dtol, max_it = self.ksp.getTolerances()
-        self.ksp.setTolerances(rtol=rtol, atol=atol, divtol=dtol, max_it=max_it)
+        _set_tolerances(self.ksp, rtol=rtol)
 
     def _unchanged(self) -> bool:
         """Whether the fingerprint of the matrix equals that of the last set-up (collective)."""
@@ -532,11 +538,11 @@ class IterativeSolver:
         if changed and self.lagged and self._rate is not None:
             ksp.setOperators(self.A, self.A)
             pc.setReusePreconditioner(True)
-            rtol, atol, dtol, max_it = ksp.getTolerances()
+            rtol, _, _, max_it = ksp.getTolerances()
             cap = int(np.ceil(LAG_FACTOR * self._rate * _decades(rtol))) + LAG_EXTRA
-            ksp.setTolerances(rtol, atol, dtol, min(cap, max_it))
+            _set_tolerances(ksp, max_it=min(cap, max_it))
             ksp.solve(F, Y)
-            ksp.setTolerances(rtol, atol, dtol, max_it)
+            _set_tolerances(ksp, max_it=max_it)
             record.linear_iterations += ksp.getIterationNumber()
             if ksp.getConvergedReason() > 0:
                 record.stale_solves += 1
@@ -617,6 +623,11 @@ class FaceElimination:
         self._rows = np.hstack([off + np.arange(faces)[:, None] * k + np.arange(k)
                                 for off, k in zip(offsets, face_block_sizes, strict=True)])
         self._faces, self._block = faces, self._rows.shape[1]
+        # local face row -> its face and its position in the face's block
+        self._face_of = np.empty(nf, dtype=np.int64)
+        self._pos_of = np.empty(nf, dtype=np.int64)
+        self._face_of[self._rows] = np.arange(faces)[:, None]
+        self._pos_of[self._rows] = np.arange(self._block)[None, :]
         self._sub = {}  # the four blocks of J, extracted again after each assembly
         self._inv = None  # A_ff⁻¹
         self._T = self._P = self.S = None  # A_ff⁻¹ A_fu, A_uf A_ff⁻¹ A_fu, S
@@ -652,10 +663,7 @@ class FaceElimination:
         indptr, cols, vals = F.getValuesCSR()
         start = F.getOwnershipRange()[0]  # the face block's own numbering
         n, b = self._faces, self._block
-        face_of = np.empty(n * b, dtype=np.int64)
-        pos_of = np.empty(n * b, dtype=np.int64)
-        face_of[self._rows] = np.arange(n)[:, None]
-        pos_of[self._rows] = np.arange(b)[None, :]
+        face_of, pos_of = self._face_of, self._pos_of
         rows = np.repeat(np.arange(len(indptr) - 1), np.diff(indptr))
         local = cols - start
         if np.any((local < 0) | (local >= n * b)) or np.any(face_of[local] != face_of[rows]):
@@ -711,8 +719,7 @@ class FaceElimination:
 
     def set_tolerance(self, rtol: float) -> None:
         """Relative tolerance of the next solve of ``S`` (:func:`forcing_term`)."""
-        rt, atol, dtol, max_it = self._ksp.getTolerances()
-        self._ksp.setTolerances(rtol=rtol, atol=atol, divtol=dtol, max_it=max_it)
+        _set_tolerances(self._ksp, rtol=rtol)
 
     def forget(self) -> None:
         """Set the preconditioner up again at the next solve."""
