@@ -6,12 +6,13 @@ import pytest
 from poromech.flow.hfv import (
     cell_gradients,
     cell_matrices,
+    fracture_face_matrices,
     fracture_half_transmissibilities,
     permeability_tensors,
+    series_matrices,
 )
 from poromech.flow.system import (
     cell_elements,
-    fracture_elements,
     pair_elements,
     shifted_cell_elements,
 )
@@ -104,7 +105,7 @@ def test_cell_elements_kernel_and_shift(cells):
 
 def test_fracture_and_pair_elements():
     T = np.array([[2.0, 3.0]])
-    E = fracture_elements(T)
+    E = cell_elements(np.diag(T[0])[None])
     assert np.allclose(E[0], [[5, -2, -3], [-2, 2, 0], [-3, 0, 3]])
     assert np.allclose(E[0] @ np.ones(3), 0)
     P = pair_elements(np.array([4.0, 4.0]), np.array([False, True]))
@@ -119,3 +120,64 @@ def test_permeability_tensors():
     assert np.allclose(permeability_tensors([np.array([2.0])])[0], 2 * np.eye(2))
     assert np.allclose(permeability_tensors([np.array([2.0]), np.array([5.0])])[0],
                        np.diag([2.0, 5.0]))
+
+
+def test_permeability_tensors_3d():
+    one = np.array([1.0])
+    k = permeability_tensors([one, 0.1 * one, 0.2 * one, 2 * one, 0.3 * one, 3 * one], 3)
+    assert np.array_equal(k[0], [[1.0, 0.1, 0.2], [0.1, 2.0, 0.3], [0.2, 0.3, 3.0]])
+    assert np.array_equal(permeability_tensors([one, 2 * one, 3 * one], 3)[0], np.diag([1, 2, 3]))
+    assert np.array_equal(permeability_tensors([2 * one], 3)[0], 2 * np.eye(3))
+    with pytest.raises(ValueError, match="1, 3 or 6"):
+        permeability_tensors([one, one], 3)
+
+
+def random_fracture_faces(n: int):
+    """Random triangles on random planes in 3D: edges ``(n, 3, 2, 3)``, frames, vertices."""
+    normal = rng.normal(size=(n, 3))
+    normal /= np.linalg.norm(normal, axis=1)[:, None]
+    t1 = np.cross(normal, rng.normal(size=(n, 3)))
+    t1 /= np.linalg.norm(t1, axis=1)[:, None]
+    t2 = np.cross(normal, t1)
+    frame = np.stack([t1, t2], 1)
+    uv = rng.uniform(-1, 1, (n, 3, 2))
+    x = rng.normal(size=(n, 1, 3)) + np.einsum("nvk,nki->nvi", uv, frame)
+    order = [[1, 2], [2, 0], [0, 1]]  # edge i opposite vertex i, in a mesh's arbitrary order
+    return x[:, order], frame, x
+
+
+def test_fracture_face_matrices_exact_for_affine():
+    """The in-plane HFV of a triangle: SPD, and exact fluxes ``-|e| ∇p·n_e`` for affine p."""
+    edges, frame, x = random_fracture_faces(300)
+    A = fracture_face_matrices(edges, frame, np.sqrt(2.0))
+    assert np.allclose(A, A.transpose(0, 2, 1), rtol=0, atol=1e-12 * np.abs(A).max())
+    assert np.linalg.eigvalsh(A).min() > 0
+    grad = np.einsum("k,nki->ni", [2.0, -1.0], frame)  # an in-plane gradient
+    mid = edges.mean(axis=2)
+    centroid = x.mean(axis=1)
+    dp = -np.einsum("nei,ni->ne", mid - centroid[:, None], grad)  # p_σ - p_e
+    flux = np.einsum("nij,nj->ni", A, dp)
+    vec = edges[:, :, 1] - edges[:, :, 0]
+    out = np.cross(vec, np.cross(mid - centroid[:, None], vec))  # in-plane, outward
+    out /= np.linalg.norm(out, axis=2)[..., None]
+    exact = -np.linalg.norm(vec, axis=2) * np.einsum("nei,ni->ne", out, grad)
+    assert np.allclose(flux, exact, rtol=0, atol=1e-10)
+
+
+def test_series_matrices():
+    """Diagonal matrices give the 2D rule T/(1 + T R); no resistance leaves A unchanged."""
+    T = rng.uniform(0.5, 2.0, (50, 2))
+    R = rng.uniform(0.0, 3.0, (50, 2)) * (rng.uniform(size=(50, 2)) > 0.3)
+    D = np.zeros((50, 2, 2))
+    D[:, [0, 1], [0, 1]] = T
+    S = series_matrices(D, R)
+    assert np.allclose(S[:, [0, 1], [0, 1]], T / (1 + T * R), rtol=1e-14)
+    edges, frame, _ = random_fracture_faces(40)
+    A = fracture_face_matrices(edges, frame, np.sqrt(2.0))
+    assert np.array_equal(series_matrices(A, np.zeros((40, 3))), A)
+    R3 = rng.uniform(0.0, 2.0, (40, 3))
+    S3 = series_matrices(A, R3)
+    expected = np.linalg.inv(np.linalg.inv(A) + R3[:, :, None] * np.eye(3))
+    assert np.allclose(S3, expected, rtol=1e-10, atol=1e-12)
+    blocked = series_matrices(A, np.where(np.arange(3) == 0, np.inf, 0.0)[None].repeat(40, 0))
+    assert np.abs(blocked[:, 0]).max() < 1e-15 * np.abs(A).max()  # round-off only

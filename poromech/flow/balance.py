@@ -25,10 +25,10 @@ class Fluxes:
     """Fluxes of the current solution on the owned cells and fracture faces (m²/s).
 
     Attributes:
-        cell: ``F_{K,σ}/η`` outward through the three faces of each owned cell, ``(nc, 3)``.
+        cell: ``F_{K,σ}/η`` outward through the faces of each owned cell, ``(nc, d + 1)``.
         pair: ``F^{mf}_{K,σ}/η`` from the ``(+, -)`` matrix sides into each fracture face,
             ``(nf, 2)``.
-        fracture: ``F_{σ,e}/η`` from each fracture face to its two nodes, ``(nf, 2)``.
+        fracture: ``F_{σ,e}/η`` from each fracture face to its nodes, ``(nf, d)``.
     """
 
     cell: Array
@@ -43,7 +43,7 @@ def compute_fluxes(problem: DarcyProblem) -> Fluxes:
     dp = p[d.cell][:, None] - p[d.cell_faces]
     cell = np.einsum("nfg,ng->nf", problem.A_cell, dp)
     pair = problem.t_pair[:, None] * (p[d.trace] - p[d.fracture][:, None])
-    fracture = problem.T_fracture * (p[d.fracture][:, None] - p[d.node])
+    fracture = np.einsum("nij,nj->ni", problem.A_fracture, p[d.fracture][:, None] - p[d.node])
     return Fluxes(cell, pair, fracture)
 
 

@@ -1,13 +1,16 @@
 """Flow boundary conditions and the unknowns they act on (local data).
 
-Matrix faces on a domain edge with a ``pressure`` condition are Dirichlet unknowns (value at
-the face midpoint); on a ``flux`` edge the face equation receives ``|σ| q_N``. Fracture-network
-nodes lying on the domain boundary (fractures reaching ∂Ω) follow the rule of
-:class:`FlowBoundary`: by default they *inherit* the condition of the edge, a pressure edge
-fixing ``p_e = g(x_e)`` and a flux edge letting ``d_f q_N(x_e)`` leave through each fracture
-face ending there (the fracture cross-section times the imposed flux); ``no_flow`` makes them
-impervious. When a node lies on two edges (a corner), a pressure condition wins. Immersed tips
-get no condition: their node equation states zero flux.
+The domain boundary is made of *parts*: the edges of the domain polygon in 2D, the six faces
+of the box in 3D. Matrix faces on a part with a ``pressure`` condition are Dirichlet unknowns
+(value at the face midpoint); on a ``flux`` part the face equation receives ``|σ| q_N``. A
+condition may be restricted to the faces whose midpoint satisfies a ``where`` predicate.
+Fracture-network nodes lying on the domain boundary (fractures reaching ∂Ω: a vertex in 2D,
+an edge in 3D) follow the rule of :class:`FlowBoundary`: by default they *inherit* the
+condition of the part, a pressure part fixing ``p_e = g(x_e)`` and a flux part letting
+``d_f |e| q_N(x_e)`` leave through each fracture face ending there (the fracture cross-section
+times the imposed flux; ``|e| = 1`` in 2D); ``no_flow`` makes them impervious. When a node lies
+on two parts (a corner), a pressure condition wins. Immersed tips get no condition: their node
+equation states zero flux.
 """
 
 from __future__ import annotations
@@ -20,9 +23,11 @@ import numpy as np
 import numpy.typing as npt
 
 from poromech.flow.dofs import FlowDofs
+from poromech.geometry.box import BoxGeometry
+from poromech.geometry.plane import PlaneGeometry
 from poromech.mesh.entities import CellGeometry
 
-__all__ = ["BoundaryDofs", "FlowBoundary", "boundary_dofs", "edges_at"]
+__all__ = ["BoundaryDofs", "FlowBoundary", "boundary_dofs", "parts_at"]
 
 Array = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -30,15 +35,18 @@ IntArray = npt.NDArray[np.int64]
 
 @dataclass(frozen=True)
 class FlowBoundary:
-    """A flow condition on domain polygon edges (unlisted edges are impervious).
+    """A flow condition on boundary parts (unlisted parts are impervious).
 
     Attributes:
         name: Boundary name (reported fluxes are grouped by it).
-        edges: Domain polygon edges it covers.
+        edges: Boundary parts it covers (domain polygon edges in 2D, box faces in 3D).
         kind: ``pressure`` (Pa) or ``flux`` (outward volumetric flux per area, m/s).
         value: The imposed value ``f(x, t)`` at points ``x`` ``(n, d)``.
         fracture_ends: ``inherit`` (fracture nodes on these edges get the same condition) or
             ``no_flow`` (fracture ends there are impervious).
+        where: Optional predicate ``f(x, t)``: the condition acts only on the faces and nodes
+            of its parts where ``f(x, 0)`` is nonzero; the rest stays impervious unless
+            another condition covers it.
     """
 
     name: str
@@ -46,6 +54,7 @@ class FlowBoundary:
     kind: Literal["pressure", "flux"]
     value: Callable[..., Array]
     fracture_ends: Literal["inherit", "no_flow"] = "inherit"
+    where: Callable[..., Array] | None = None
 
 
 @dataclass(frozen=True)
@@ -56,76 +65,90 @@ class BoundaryDofs:
         mask: Dirichlet mask over the local dofs.
         dirichlet: Local Dirichlet dofs (each once) and their condition index.
         flux_faces: ``(local dof, condition, |σ|)`` of the flux faces of owned cells.
-        flux_nodes: ``(local dof, condition, owned fracture face)`` of the fracture ends on flux
-            edges, one entry per fracture face ending there.
-        face_edge: Domain edge of each face of the owned cells, ``(nc, 3)``, ``-1`` inside.
-        node_edge: Domain edge (with a condition if any) of each end of the owned fracture
-            faces, ``(nf, 2)``, ``-1`` inside.
+        flux_nodes: ``(local dof, condition, owned fracture face, |e|)`` of the fracture ends
+            on flux parts, one entry per fracture face ending there (``|e|`` the edge length in
+            3D, 1 in 2D).
+        face_edge: Boundary part of each face of the owned cells, ``(nc, d + 1)``, ``-1``
+            inside.
+        node_edge: Boundary part (with a condition if any) of each node of the owned fracture
+            faces, ``(nf, d)``, ``-1`` inside.
     """
 
     mask: npt.NDArray[np.bool_]
     dirichlet: tuple[IntArray, IntArray]
     flux_faces: tuple[IntArray, IntArray, Array]
-    flux_nodes: tuple[IntArray, IntArray, IntArray]
+    flux_nodes: tuple[IntArray, IntArray, IntArray, Array]
     face_edge: IntArray
     node_edge: IntArray
 
 
-def edges_at(points: Array, polygon: Array, tol: float) -> npt.NDArray[np.bool_]:
-    """``(n, num_edges)`` mask of the domain polygon edges each point lies on (within ``tol``)."""
-    a, b = polygon, np.roll(polygon, -1, axis=0)
-    ab = b - a
-    rel = points[:, None, :] - a[None]
-    s = np.clip(np.einsum("nei,ei->ne", rel, ab) / np.einsum("ei,ei->e", ab, ab), 0.0, 1.0)
-    return np.linalg.norm(rel - s[..., None] * ab[None], axis=2) <= tol
+def parts_at(geometry: PlaneGeometry | BoxGeometry, points: Array, tol: float
+             ) -> npt.NDArray[np.bool_]:
+    """``(n, num_parts)`` mask of the boundary parts each point lies on (within ``tol``).
+
+    Polygon edges in 2D, box faces (in :attr:`BoxGeometry.boundary_names` order) in 3D.
+    """
+    return geometry.on_boundary(points, tol)
 
 
-def _edge_conditions(bcs: Sequence[FlowBoundary], num_edges: int) -> IntArray:
-    """Condition index of every domain edge, ``-1`` for impervious edges."""
-    out = np.full(num_edges, -1, dtype=np.int64)
+def _face_conditions(bcs: Sequence[FlowBoundary], face_part: IntArray, x: Array) -> IntArray:
+    """Condition of each boundary face (the last listed condition covering it), ``-1`` if none."""
+    out = np.full(face_part.shape, -1, dtype=np.int64)
+    on = face_part >= 0
     for i, bc in enumerate(bcs):
-        out[list(bc.edges)] = i
+        sel = on & np.isin(face_part, bc.edges)
+        if bc.where is not None and sel.any():
+            sel[sel] = np.asarray(bc.where(x[sel], 0.0)) != 0
+        out[sel] = i
     return out
 
 
-def _node_conditions(on_edge, edge_bc, bcs):
-    """Condition of each boundary node (pressure first) and the edge it is attributed to."""
-    n = len(on_edge)
+def _node_conditions(on_edge, bcs, x):
+    """Condition of each boundary node (pressure first) and the part it is attributed to.
+
+    On each part a node takes the last listed condition covering it there (as faces do).
+    """
+    n, parts = on_edge.shape
+    cover = np.column_stack([_face_conditions(bcs, np.where(on_edge[:, e], e, -1), x)
+                             for e in range(parts)]) if n else np.full((0, parts), -1)
     cond = np.full(n, -1, dtype=np.int64)
     edge = np.full(n, -1, dtype=np.int64)
     for priority in ("flux", "pressure"):  # later assignments win
-        for e in range(on_edge.shape[1]):
-            i = edge_bc[e]
-            if i < 0 or bcs[i].kind != priority or bcs[i].fracture_ends != "inherit":
-                continue
-            cond[on_edge[:, e]] = i
-            edge[on_edge[:, e]] = e
+        ok = np.array([bc.kind == priority and bc.fracture_ends == "inherit" for bc in bcs]
+                      + [False])
+        for e in range(parts):
+            i = cover[:, e]
+            sel = ok[i]
+            cond[sel] = i[sel]
+            edge[sel] = e
     unconditioned = (edge < 0) & on_edge.any(axis=1)
     edge[unconditioned] = np.argmax(on_edge[unconditioned], axis=1)
     return cond, edge
 
 
 def boundary_dofs(
-    dofs: FlowDofs, geom: CellGeometry, polygon: Array, bcs: Sequence[FlowBoundary]
+    dofs: FlowDofs, geom: CellGeometry, geometry: PlaneGeometry | BoxGeometry,
+    bcs: Sequence[FlowBoundary], node_length: Array | None = None,
 ) -> BoundaryDofs:
     """Classify the boundary unknowns of this rank (local).
 
     Args:
         dofs: The numbering.
         geom: The cell geometry.
-        polygon: Domain polygon vertices (m).
+        geometry: The domain (polygon edges or box faces are the boundary parts).
         bcs: The conditions.
+        node_length: ``|e|`` of each node of the owned fracture faces ``(nf, d)`` (3D; None
+            in 2D: 1).
     """
-    edge_bc = _edge_conditions(bcs, len(polygon))
-    kinds = np.array([bc.kind == "pressure" for bc in bcs] + [False])
     face_edge = dofs.facet_edge[geom.facets]
-    face_bc = np.where(face_edge >= 0, edge_bc[face_edge], -1)
+    face_bc = _face_conditions(bcs, face_edge, geom.facet_midpoint[geom.facets])
+    kinds = np.array([bc.kind == "pressure" for bc in bcs] + [False])
     is_dir = kinds[face_bc] & (face_bc >= 0)
     is_flux = (face_bc >= 0) & ~is_dir
-    tol = 1e-8 * float(np.linalg.norm(polygon.max(axis=0) - polygon.min(axis=0)))
     ends = dofs.node.ravel()
-    on_edge = edges_at(dofs.points[ends], polygon, tol)
-    node_bc, node_edge = _node_conditions(on_edge, edge_bc, bcs)
+    x = dofs.points[ends]
+    on_edge = parts_at(geometry, x, 1e-8 * geometry.diameter)
+    node_bc, node_edge = _node_conditions(on_edge, bcs, x)
     node_dir = (node_bc >= 0) & kinds[node_bc]
     node_flux = (node_bc >= 0) & ~node_dir
     dir_dofs = np.concatenate([dofs.cell_faces[is_dir], ends[node_dir]])
@@ -133,12 +156,14 @@ def boundary_dofs(
     dir_dofs, first = np.unique(dir_dofs, return_index=True)
     mask = np.zeros(dofs.num_local, dtype=bool)
     mask[dir_dofs] = True
-    face_index = np.repeat(np.arange(len(dofs.fracture)), 2)
+    nv = dofs.node.shape[1] if dofs.node.ndim == 2 else 2
+    face_index = np.repeat(np.arange(len(dofs.fracture)), nv)
+    length = np.ones(len(ends)) if node_length is None else np.asarray(node_length).ravel()
     return BoundaryDofs(
         mask,
         (dir_dofs, dir_bc[first]),
         (dofs.cell_faces[is_flux], face_bc[is_flux], geom.area[is_flux]),
-        (ends[node_flux], node_bc[node_flux], face_index[node_flux]),
+        (ends[node_flux], node_bc[node_flux], face_index[node_flux], length[node_flux]),
         face_edge,
-        node_edge.reshape(-1, 2),
+        node_edge.reshape(-1, nv),
     )

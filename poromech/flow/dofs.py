@@ -1,13 +1,16 @@
 """Distributed numbering of the HFV unknowns, derived from the DOLFINx index maps.
 
 Unknowns (DESIGN §5): ``p_K`` per cell, ``p_σ`` per face not on Γ, two traces ``p_{K,σ}`` and
-``p_{f,σ}`` per fracture face, ``p_e`` per fracture-network node. Ownership follows the mesh:
+``p_{f,σ}`` per fracture face, ``p_e`` per fracture-network node: the entities of dimension
+``d - 2`` of the fracture faces, vertices in 2D and edges in 3D (the faces of the fracture
+cells). Ownership follows the mesh:
 
 * cells: the cell index map;
 * faces, traces and fracture pressures: the facet index map (the owner of a fracture facet owns
   its three unknowns, ordered ``[trace +, trace -, p_f]``);
-* network nodes: the vertex index map. A vertex is a node when any rank has a fracture facet
-  through it; ranks mark such vertices and a reverse scatter tells the owners.
+* network nodes: the vertex (2D) or edge (3D) index map. An entity is a node when any rank has
+  a fracture facet containing it; ranks mark such entities and a reverse scatter tells the
+  owners.
 
 Each rank owns one contiguous block of global indices, ordered
 ``[cells | faces (1 or 3 unknowns each) | nodes]``. Local dof indices put the owned dofs first
@@ -25,7 +28,12 @@ import numpy as np
 import numpy.typing as npt
 from mpi4py import MPI
 
-from poromech.mesh.entities import CellGeometry, facet_vertices, vertex_coordinates
+from poromech.mesh.entities import (
+    CellGeometry,
+    facet_ridges,
+    ridge_coordinates,
+    vertex_coordinates,
+)
 from poromech.mesh.fractured import FracturedMesh
 
 __all__ = ["KINDS", "FlowDofs", "number_dofs"]
@@ -46,18 +54,20 @@ class FlowDofs:
         start: Global index of the first owned dof.
         ghosts: Global indices of the ghost dofs (local index ``num_owned + i``), sorted.
         cell: Local dof of each owned cell, ``(nc,)``.
-        cell_faces: Local dofs seen by each owned cell through its faces, ``(nc, 3)``:
+        cell_faces: Local dofs seen by each owned cell through its faces, ``(nc, d + 1)``:
             ``p_σ`` on ordinary faces, the cell's own trace ``p_{K,σ}`` on fracture faces.
         cell_fracture: Local dof of ``p_{f,σ}`` for the fracture faces of each owned cell,
-            ``-1`` on ordinary faces, ``(nc, 3)``.
+            ``-1`` on ordinary faces, ``(nc, d + 1)``.
         trace: Local dofs of the ``(+, -)`` traces of the owned fracture faces, ``(nf, 2)``.
         fracture: Local dof of ``p_{f,σ}`` of the owned fracture faces, ``(nf,)``.
-        node: Local dofs of the two end nodes of the owned fracture faces, ``(nf, 2)``, the
-            first nearer to the start of the fracture polyline.
-        node_vertex: Local vertex index of those nodes, ``(nf, 2)``.
+        node: Local dofs of the nodes of the owned fracture faces, ``(nf, d)``: in 2D the two
+            end points, the first nearer to the start of the fracture polyline; in 3D the three
+            edges of the triangle.
+        node_entity: Local entity (vertex in 2D, edge in 3D) of those nodes, ``(nf, d)``.
         facet_edge: Domain polygon edge of every local facet, ``-1`` if interior.
         kind: Kind of every local dof (:data:`KINDS` index).
-        points: Location of every local dof (cell centre, face midpoint, vertex), ``(n, 2)``.
+        points: Location of every local dof (cell centre, face midpoint, vertex or edge
+            midpoint), ``(n, d)``.
         counts: Global numbers of cells, faces, traces, fracture faces and nodes.
     """
 
@@ -71,7 +81,7 @@ class FlowDofs:
     trace: IntArray
     fracture: IntArray
     node: IntArray
-    node_vertex: npt.NDArray[np.int32]
+    node_entity: npt.NDArray[np.int32]
     facet_edge: IntArray
     kind: npt.NDArray[np.int8]
     points: npt.NDArray[np.float64]
@@ -112,13 +122,13 @@ def _reverse_sum(imap, local: IntArray) -> IntArray:
 def _owned_nodes(fm: FracturedMesh) -> npt.NDArray[np.int32]:
     """Owned entities of dimension ``d - 2`` that are fracture-network nodes (collective).
 
-    Vertices in 2D (where the fracture network's faces are segments).
+    Vertices in 2D (where the fracture network's faces are segments), edges in 3D.
     """
     top = fm.msh.topology
     vmap = top.index_map(top.dim - 2)
     mark = np.zeros(vmap.size_local + vmap.num_ghosts, dtype=np.int64)
     if len(fm.fracture_facets_all):
-        mark[np.unique(facet_vertices(fm.msh, fm.fracture_facets_all))] = 1
+        mark[np.unique(facet_ridges(fm.msh, fm.fracture_facets_all))] = 1
     return np.flatnonzero(_reverse_sum(vmap, mark) > 0).astype(np.int32)
 
 
@@ -172,6 +182,7 @@ def number_dofs(fm: FracturedMesh, geom: CellGeometry) -> FlowDofs:
     """
     msh, comm = fm.msh, fm.comm
     tdim = msh.topology.dim
+    msh.topology.create_entities(tdim - 2)
     cmap, vmap = msh.topology.index_map(tdim), msh.topology.index_map(tdim - 2)
     nc = cmap.size_local
     is_frac, offset = _facet_layout(fm)
@@ -189,7 +200,9 @@ def number_dofs(fm: FracturedMesh, geom: CellGeometry) -> FlowDofs:
     cell_fracture = np.where(is_frac[geom.facets], facet[geom.facets, 0] + 2, -1)
     ff = fm.fractures.facets
     base = facet[ff, 0]
-    verts = _along_fracture(fm, facet_vertices(msh, ff).astype(np.int32).reshape(-1, 2))
+    verts = facet_ridges(msh, ff).astype(np.int32).reshape(-1, tdim)
+    if tdim == 2:
+        verts = _along_fracture(fm, verts)
     node = node_global[verts]
     if np.any(node < 0):
         raise RuntimeError("a fracture face has an unnumbered network node")
@@ -230,7 +243,7 @@ def _locations(fm, geom, offset, nodes, local, is_frac, refs):
     nc, nfo = geom.num_cells, len(offset) - 1
     n = local.num_owned + len(local.ghosts)
     kind = np.zeros(n, dtype=np.int8)
-    points = np.zeros((n, 2))
+    points = np.zeros((n, fm.msh.geometry.dim))
     points[:nc] = geom.centroid
     size = np.diff(offset)
     facet_of = np.repeat(np.arange(nfo), size)
@@ -239,7 +252,7 @@ def _locations(fm, geom, offset, nodes, local, is_frac, refs):
     points[owned_faces] = geom.facet_midpoint[facet_of]
     kind[owned_faces] = np.where(is_frac[facet_of], np.where(within < 2, 2, 3), 1)
     tail = slice(nc + offset[-1], local.num_owned)
-    points[tail] = vertex_coordinates(fm.msh, nodes)
+    points[tail] = _node_points(fm.msh, nodes)
     kind[tail] = 4
     ghost_faces = local(cell_faces) >= local.num_owned
     idx = local(cell_faces)[ghost_faces]
@@ -250,9 +263,14 @@ def _locations(fm, geom, offset, nodes, local, is_frac, refs):
     points[idx] = geom.facet_midpoint[geom.facets[frac]]
     kind[idx] = 3
     idx = local(node_global[verts]).ravel()
-    points[idx] = vertex_coordinates(fm.msh, verts.ravel())
+    points[idx] = _node_points(fm.msh, verts.ravel())
     kind[idx] = 4
     return kind, points
+
+
+def _node_points(msh, entities) -> npt.NDArray[np.float64]:
+    """Locations of node unknowns: the vertex (2D) or the edge midpoint (3D)."""
+    return ridge_coordinates(msh, entities).mean(axis=1)
 
 
 def _global_counts(comm: MPI.Comm, nc: int, is_frac, fmap_size: int, nodes: int) -> dict:

@@ -29,6 +29,11 @@ Which fractures run through a node is settled once, on the rank that owns the no
 from the fracture indices of every face end there; the crossed faces' data are then averaged
 there at every coefficient update (two all-to-all exchanges of face-end values, collective).
 The result does not depend on the partition.
+
+In 3D the nodes are the edges of the fracture triangles and the intersections are lines made
+of such edges; the same rule applies per edge, the overlap segment becoming a strip of width
+``d_j / 2`` along the edge, so the resistance of the edge is ``ΔR_{σ,e} / |e|`` in series with
+the face's HFV matrix (:func:`poromech.flow.hfv.series_matrices`).
 """
 
 from __future__ import annotations
@@ -128,25 +133,26 @@ class FractureCrossings:
         fracture: Fracture index of each owned fracture face ``(nf,)``.
 
     Attributes:
-        crossing: ``(nf, 2)`` mask of the owned face ends that cross another fracture.
+        crossing: ``(nf, d)`` mask of the owned face ends (nodes) that cross another fracture.
         num_crossing: Global number of such face ends.
     """
 
     def __init__(self, comm: MPI.Comm, dofs: FlowDofs, fracture: npt.NDArray):
         self.comm = comm
         self._nf = len(dofs.fracture)
+        self._nv = dofs.node.shape[1] if dofs.node.ndim == 2 else 2
         key = dofs.local_to_global(dofs.node.ravel())
         starts = np.asarray(comm.allgather(dofs.start))
         dest = np.searchsorted(starts, key, side="right") - 1
         self._order = np.argsort(dest, kind="stable")
         self._send_counts = np.bincount(dest, minlength=comm.size)
-        fid = np.repeat(np.asarray(fracture, dtype=np.int64), 2)
+        fid = np.repeat(np.asarray(fracture, dtype=np.int64), self._nv)
         recv = self._to_owners(np.column_stack([key, fid]).astype(np.int64))
         self._recv_counts = np.array([len(r) for r in recv])
         rec = np.concatenate(recv)
         self._W = crossing_matrix(rec[:, 0], rec[:, 1])
         crossed = np.diff(self._W.indptr) > 0
-        self.crossing = self._from_owners(crossed.astype(np.float64)).reshape(-1, 2) > 0.5
+        self.crossing = self._from_owners(crossed.astype(np.float64)).reshape(-1, self._nv) > 0.5
         self.num_crossing = int(comm.allreduce(int(self.crossing.sum())))
 
     def _to_owners(self, values: npt.NDArray) -> list[npt.NDArray]:
@@ -170,12 +176,12 @@ class FractureCrossings:
             values: ``(nf, k)`` values of the owned fracture faces.
 
         Returns:
-            ``(nf, 2, k)``, zero where the end crosses no fracture.
+            ``(nf, d, k)``, zero where the end crosses no fracture.
         """
         values = np.asarray(values, dtype=float)
         k = values.shape[1]
         if self.num_crossing == 0:
-            return np.zeros((self._nf, 2, k))
-        recv = self._to_owners(np.repeat(values, 2, axis=0))
+            return np.zeros((self._nf, self._nv, k))
+        recv = self._to_owners(np.repeat(values, self._nv, axis=0))
         mean = self._W @ np.concatenate(recv).reshape(-1, k)
-        return self._from_owners(mean).reshape(self._nf, 2, k)
+        return self._from_owners(mean).reshape(self._nf, self._nv, k)

@@ -4,9 +4,10 @@
 ``u_m`` (m/s), both cell-wise; a coupled run adds the overpressure ``p_m - p⁰`` and the porosity.
 ``fractures_flow.xdmf`` (flow-only runs; a coupled run writes these fields into
 ``fractures.xdmf``) holds, on the fracture faces: ``p_f`` (Pa), the traces ``p_plus``/``p_minus``
-(Pa), the aperture ``d_f`` (m), the tangential volumetric flux ``q_f`` (vector, m²/s per unit
-depth) and the normal fluxes ``u_plus``/``u_minus`` from each matrix side into the fracture
-(m/s). The series are crash-safe (:mod:`poromech.io.xdmf`).
+(Pa), the aperture ``d_f`` (m), the tangential volumetric flux ``q_f`` (vector, m²/s: per
+unit depth in 2D, per unit width of the fracture in 3D) and the normal fluxes
+``u_plus``/``u_minus`` from each matrix side into the fracture (m/s). The series are
+crash-safe (:mod:`poromech.io.xdmf`).
 """
 
 from __future__ import annotations
@@ -31,7 +32,12 @@ def matrix_fields(problem: DarcyProblem, fluxes: Fluxes) -> dict[str, np.ndarray
 def fracture_fields(problem: DarcyProblem, fluxes: Fluxes) -> dict[str, np.ndarray]:
     """Pressures, aperture and fluxes on the owned fracture faces."""
     length = problem.faces.measure
-    along = 0.5 * (fluxes.fracture[:, 1] - fluxes.fracture[:, 0])
+    if problem.face_direction is None:  # 3D: (1/|σ|) Σ_e F_{σ,e} (x_e - x_σ), exact if constant
+        offset = problem.dofs.points[problem.dofs.node] - problem.faces.midpoint[:, None]
+        q_f = np.einsum("ne,nei->ni", fluxes.fracture, offset) / length[:, None]
+    else:
+        q_f = 0.5 * (fluxes.fracture[:, 1] - fluxes.fracture[:, 0])[:, None] \
+            * problem.face_direction
     return {
         "p_f": problem.fracture_pressure,
         "p_plus": problem.trace_pressure[:, 0],
@@ -39,7 +45,7 @@ def fracture_fields(problem: DarcyProblem, fluxes: Fluxes) -> dict[str, np.ndarr
         "d_f": problem.properties.aperture,
         "u_plus": fluxes.pair[:, 0] / length,
         "u_minus": fluxes.pair[:, 1] / length,
-        "q_f": along[:, None] * problem.face_direction,
+        "q_f": q_f,
     }
 
 

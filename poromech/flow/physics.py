@@ -42,9 +42,14 @@ def solve_record(problem: DarcyProblem, t: float, step: TimeStep | None) -> dict
     }
 
 
-def probe_faces(problem: DarcyProblem) -> tuple:
-    """The owned fracture faces for probes: segments between their node unknowns, keys."""
+def probe_faces(problem: DarcyProblem) -> tuple | None:
+    """The owned fracture faces for probes: segments between their node unknowns, keys.
+
+    None in 3D: a line there samples the matrix only (its ``p_f`` column is empty).
+    """
     fm = problem.fm
+    if problem.dim == 3:
+        return None
     return problem.dofs.points[problem.dofs.node], fm.fractures.index.astype(np.float64)
 
 
@@ -186,7 +191,8 @@ def flow_report(problem: DarcyProblem, records: list) -> dict[str, Any]:
         "solver": problem.solver.describe(),
         "linear_iterations": int(sum(r.get("iterations", 0) for r in records)),
         "solve_seconds": float(sum(r.get("seconds", 0.0) for r in records)),
-        "flux_unit": "m^2/s (volumetric flux per unit depth)",
+        "flux_unit": ("m^3/s (volumetric flux)" if problem.dim == 3
+                      else "m^2/s (volumetric flux per unit depth)"),
     }
     done = [r for r in records if "mass_balance" in r]
     if done:

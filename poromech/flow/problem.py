@@ -38,11 +38,10 @@ from poromech.flow.system import (
     ElementValues,
     SystemPattern,
     cell_elements,
-    fracture_elements,
     pair_elements,
     shifted_cell_elements,
 )
-from poromech.mesh.entities import CellGeometry, cell_geometry
+from poromech.mesh.entities import CellGeometry, cell_geometry, ridge_coordinates
 from poromech.mesh.fractured import FracturedMesh
 
 __all__ = [
@@ -55,6 +54,8 @@ __all__ = [
 ]
 
 Array = npt.NDArray[np.float64]
+#: HFV stabilization of the triangular fracture faces in 3D (``√d`` in the fracture's dimension).
+FRACTURE_BETA_3D = float(np.sqrt(2.0))
 #: A space-time field ``f(points, t)``: values at points ``(n, d)`` (m) and time ``t`` (s).
 Field = Callable[[Array, float], Array]
 
@@ -148,15 +149,23 @@ class DarcyProblem:
         geom: Geometry of the owned cells.
         dofs: The distributed numbering of the unknowns.
         faces: The owned fracture faces, ``fm.fractures``.
-        face_direction: Unit vector from the first to the second node unknown of each face (the
-            direction of positive flux along it), ``(nf, d)``.
+        face_direction: 2D: unit vector from the first to the second node unknown of each face
+            (the direction of positive flux along it), ``(nf, 2)``; None in 3D.
         bdofs: Where the boundary conditions act.
-        A_cell: Cell matrices ``A_K / η`` of the owned cells, ``(nc, 3, 3)`` (m²/(Pa·s)).
+        A_cell: Cell matrices ``A_K / η`` of the owned cells, ``(nc, d + 1, d + 1)``
+            (m^{d-1}/(Pa·s)).
         t_pair: ``|σ| T_f / η`` of the owned fracture faces (m²/(Pa·s)).
-        T_fracture: ``T*_{σ,e} / η`` to both nodes of the owned fracture faces, ``(nf, 2)``:
-            the half-face transmissibility, in series with the resistance of the overlap with
-            the fractures crossed at that node (:mod:`poromech.flow.intersections`).
-        T_half: ``T_{σ,e} / η``, the half-face part of ``T_fracture``, ``(nf, 2)``.
+        A_fracture: Fracture-face matrices ``(nf, d, d)``: the fluxes from each owned
+            fracture face to its nodes are ``A_fracture (p_f - p_e)``. In 2D the diagonal
+            ``T*_{σ,e} / η`` (``T_fracture``); in 3D the HFV matrices of the triangles
+            (:func:`~poromech.flow.hfv.fracture_face_matrices`) times ``C_f / η``, in series
+            with the resistance of the overlap with the fractures crossed at a node
+            (:mod:`poromech.flow.intersections`).
+        A_half: ``A_fracture`` without the crossing resistances.
+        T_fracture: 2D: ``T*_{σ,e} / η`` to both nodes of the owned fracture faces,
+            ``(nf, 2)``: the half-face transmissibility, in series with the resistance of the
+            overlap with the fractures crossed at that node; None in 3D.
+        T_half: 2D: ``T_{σ,e} / η``, the half-face part of ``T_fracture``, ``(nf, 2)``.
         crossings: Which face ends cross another fracture at their node.
         p: Current solution on the local (owned, then ghost) dofs (Pa).
         head: ``ρ_f g·x`` at every local dof (Pa), or None without gravity.
@@ -182,12 +191,20 @@ class DarcyProblem:
         self.geom: CellGeometry = cell_geometry(fm.msh) if geom is None else geom
         self.dofs: FlowDofs = number_dofs(fm, self.geom)
         self.faces = fm.fractures
-        self.face_direction = _node_directions(self.dofs)
+        self.dim = fm.msh.topology.dim
+        self.face_direction = _node_directions(self.dofs) if self.dim == 2 else None
+        self._unit_fracture, node_length = None, None
+        if self.dim == 3:
+            edges = ridge_coordinates(fm.msh, self.dofs.node_entity.ravel()).reshape(-1, 3, 2, 3)
+            self._unit_fracture = hfv.fracture_face_matrices(edges, fm.fractures.tangents,
+                                                             FRACTURE_BETA_3D)
+            node_length = np.linalg.norm(edges[:, :, 1] - edges[:, :, 0], axis=2)
+        self.node_length = node_length
         self.crossings = FractureCrossings(self.comm, self.dofs, fm.fractures.fracture)
         self.boundary = tuple(boundary)
-        self.bdofs = boundary_dofs(self.dofs, self.geom, fm.geometry.boundary, self.boundary)
+        self.bdofs = boundary_dofs(self.dofs, self.geom, fm.geometry, self.boundary, node_length)
         self.source, self.fracture_source = source, fracture_source
-        self.beta = float(np.sqrt(2.0)) if beta is None else float(beta)
+        self.beta = float(np.sqrt(float(self.dim))) if beta is None else float(beta)
         self.pattern = SystemPattern(self.dofs, self.bdofs.mask)
         self.A = self.pattern.create_matrix(self.comm)
         d = self.dofs
@@ -232,12 +249,19 @@ class DarcyProblem:
         T_f = normal_transmissibility(props)
         self.t_pair = self.faces.measure * T_f / eta
         C_f = fracture_conductivity(props)
-        half = hfv.fracture_half_transmissibilities(self.faces.measure, C_f)
         with np.errstate(divide="ignore"):
             crossed = self.crossings.averages(np.column_stack([0.5 / T_f, props.aperture]))
         added = crossing_resistance(crossed, C_f, props.aperture)
-        self.T_half = np.column_stack([half, half]) / eta
-        self.T_fracture = series_transmissibilities(self.T_half, added)
+        if self.dim == 2:
+            half = hfv.fracture_half_transmissibilities(self.faces.measure, C_f)
+            self.T_half = np.column_stack([half, half]) / eta
+            self.T_fracture = series_transmissibilities(self.T_half, added)
+            self.A_half = _diagonal(self.T_half)
+            self.A_fracture = _diagonal(self.T_fracture)
+        else:
+            self.T_half = self.T_fracture = None
+            self.A_half = (C_f / eta)[:, None, None] * self._unit_fracture
+            self.A_fracture = hfv.series_matrices(self.A_half, added / self.node_length)
         self._values = None
         if self.shift.update(self.A_cell, self.t_pair):
             self._write_guess()
@@ -262,7 +286,7 @@ class DarcyProblem:
             shifted_cell_elements(E[touching], self.shift.cell[touching]),
             pair_elements(np.concatenate([self.t_pair, self.t_pair]),
                           np.concatenate([self.shift.pair, self.shift.pair])),
-            fracture_elements(self.T_fracture),
+            cell_elements(self.A_fracture),
             storage,
             fracture_storage,
         )
@@ -331,9 +355,9 @@ class DarcyProblem:
             b[d.fracture] += f.measure * self.fracture_source(f.midpoint, t)
         dof, bc, area = self.bdofs.flux_faces
         b -= np.bincount(dof, area * self._boundary_values(dof, bc, t), minlength=d.num_local)
-        dof, bc, face = self.bdofs.flux_nodes
-        d_f = self.properties.aperture[face]
-        b -= np.bincount(dof, d_f * self._boundary_values(dof, bc, t), minlength=d.num_local)
+        dof, bc, face, length = self.bdofs.flux_nodes
+        section = self.properties.aperture[face] * length
+        b -= np.bincount(dof, section * self._boundary_values(dof, bc, t), minlength=d.num_local)
         if step is not None:
             b[d.cell] += g.volume * (step.porosity_prev - step.porosity_fixed) / step.dt
             b[d.fracture] -= f.measure * (self._volume_fixed(step) - step.aperture_prev) / step.dt
@@ -432,7 +456,7 @@ class DarcyProblem:
 
     @property
     def node_pressure(self) -> Array:
-        """``p_e`` at the two ends of the owned fracture faces ``(nf, 2)``."""
+        """``p_e`` at the nodes of the owned fracture faces ``(nf, d)``."""
         return self.p[self.dofs.node]
 
     @property
@@ -445,6 +469,9 @@ class DarcyProblem:
         behind a blocking intersection the branch keeps its own pressure up to the crossing.
         """
         p_f = self.fracture_pressure[:, None]
+        if self.dim == 3:  # q = p_f - A_half⁻¹ F, F = A_fracture (p_f - p_e)
+            flux = np.einsum("nij,nj->ni", self.A_fracture, p_f - self.node_pressure)
+            return p_f - np.linalg.solve(self.A_half, flux[..., None])[..., 0]
         with np.errstate(divide="ignore", invalid="ignore"):
             ratio = np.where(self.T_half > 0, self.T_fracture / self.T_half, 1.0)
         return p_f - ratio * (p_f - self.node_pressure)
@@ -469,6 +496,14 @@ class DarcyProblem:
         self.solver.destroy()
         for obj in (self.A, self.b, self.x):
             obj.destroy()
+
+
+def _diagonal(T: Array) -> Array:
+    """``(n, k, k)`` diagonal matrices from ``(n, k)`` diagonals."""
+    out = np.zeros(T.shape + T.shape[-1:])
+    idx = np.arange(T.shape[1])
+    out[:, idx, idx] = T
+    return out
 
 
 def _node_directions(dofs: FlowDofs) -> Array:

@@ -13,6 +13,7 @@ import numpy as np
 from poromech.flow.boundary import FlowBoundary
 from poromech.flow.hfv import permeability_tensors
 from poromech.flow.problem import DarcyProblem, FlowProperties
+from poromech.geometry.box import BoxGeometry
 from poromech.geometry.plane import PlaneGeometry
 from poromech.mesh.entities import CellGeometry, cell_geometry
 from poromech.mesh.fractured import FracturedMesh
@@ -56,7 +57,7 @@ def flow_properties(scene: Scene, fm: FracturedMesh, geom: CellGeometry,
     """Coefficients of the scene at time ``t`` on the owned entities."""
     flow = scene.flow
     x = geom.centroid
-    perm = permeability_tensors([_at(e, x, t) for e in flow.permeability])
+    perm = permeability_tensors([_at(e, x, t) for e in flow.permeability], x.shape[1])
     storage = 0.0
     if flow.biot_modulus is not None and scene.time is not None:
         storage = 1.0 / flow.biot_modulus
@@ -74,14 +75,14 @@ def time_dependent(scene: Scene) -> bool:
     return any(e is not None and e.depends_on_time for e in exprs)
 
 
-def flow_boundaries(scene: Scene, geometry: PlaneGeometry) -> list[FlowBoundary]:
+def flow_boundaries(scene: Scene, geometry: PlaneGeometry | BoxGeometry) -> list[FlowBoundary]:
     """The boundary conditions of the scene, with their domain polygon edges."""
     out = []
     for bc in scene.flow.boundary_conditions:
         edges = tuple(i for i, n in enumerate(geometry.boundary_names) if n == bc.boundary)
         kind = "pressure" if bc.pressure is not None else "flux"
         value = bc.pressure if bc.pressure is not None else bc.flux
-        out.append(FlowBoundary(bc.boundary, edges, kind, value, bc.fracture_ends))
+        out.append(FlowBoundary(bc.boundary, edges, kind, value, bc.fracture_ends, bc.where))
     return out
 
 

@@ -6,9 +6,10 @@ semi-definite element matrices:
 
 * matrix cell ``K`` on ``[p_K, p_{K,σ_1..3}]``: ``[[1ᵀA1, -(A1)ᵀ], [-A1, A]]`` with ``A = A_K / η``;
 * matrix-fracture pair on ``[p_{K,σ}, p_{f,σ}]``: ``|σ| T_f / η · [[1, -1], [-1, 1]]``;
-* fracture face on ``[p_{f,σ}, p_{e_1}, p_{e_2}]``: two-point fluxes ``T*_{σ,e} / η`` (half
-  face and, at an intersection, the overlap with the crossed fractures:
-  :mod:`poromech.flow.intersections`);
+* fracture face on ``[p_{f,σ}, p_e ...]`` (two nodes in 2D, three edges in 3D): the
+  cell element of the face matrix ``A_fracture`` (in 2D the diagonal of the two-point
+  fluxes ``T*_{σ,e} / η``), half face and, at an intersection, the overlap with the crossed
+  fractures (:mod:`poromech.flow.intersections`);
 * storage on ``[p_K]``: ``|K| s_K / Δt`` and on ``[p_{f,σ}]``: ``|σ| s_f / Δt`` (zero for
   steady solves).
 
@@ -41,7 +42,6 @@ __all__ = [
     "ElementValues",
     "SystemPattern",
     "cell_elements",
-    "fracture_elements",
     "pair_elements",
     "shifted_cell_elements",
 ]
@@ -97,27 +97,16 @@ def pair_elements(t: Array, shifted: npt.NDArray[np.bool_]) -> Array:
     return E
 
 
-def fracture_elements(T: Array) -> Array:
-    """Element matrices on ``[p_f, p_e1, p_e2]`` from half transmissibilities ``T`` ``(n, 2)``."""
-    E = np.zeros((len(T), 3, 3))
-    E[:, 0, 0] = T.sum(axis=1)
-    E[:, 0, 1:] = -T
-    E[:, 1:, 0] = -T
-    E[:, 1, 1] = T[:, 0]
-    E[:, 2, 2] = T[:, 1]
-    return E
-
-
 @dataclass(frozen=True)
 class ElementValues:
     """Element matrices of every block (already divided by the viscosity).
 
     Attributes:
-        cell: ``(n0, 4, 4)`` elements of the cells without fracture faces.
-        fracture_cell: ``(n1, 7, 7)`` elements of the cells with fracture faces (see
+        cell: ``(n0, d + 2, d + 2)`` elements of the cells without fracture faces.
+        fracture_cell: ``(n1, 2d + 3, 2d + 3)`` elements of the cells with fracture faces (see
             :func:`shifted_cell_elements`).
         pair: ``(2 nf, 2, 2)`` matrix-fracture elements, ``+`` sides then ``-`` sides.
-        fracture: ``(nf, 3, 3)`` fracture-face elements.
+        fracture: ``(nf, d + 1, d + 1)`` fracture-face elements.
         storage: ``(nc,)`` storage diagonal ``|K| s_K / Δt``.
         fracture_storage: ``(nf,)`` fracture storage diagonal ``|σ| s_f / Δt``.
     """

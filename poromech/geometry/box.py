@@ -390,6 +390,12 @@ class BoxGeometry:
         frames = np.array([np.stack(f.tangents) for f in self.fractures]).reshape(-1, 2, 3)
         return normals[fracture], frames[fracture]
 
+    def on_boundary(self, points, tol: float) -> npt.NDArray[np.bool_]:
+        """``(n, 6)`` mask of the box faces each point (inside the box) lies on (within ``tol``)."""
+        points = np.asarray(points, dtype=float)
+        planes = [self.face_plane(i) for i in range(len(self.boundary_names))]
+        return np.column_stack([np.abs(points[:, a] - c) <= tol for a, c in planes])
+
     def face_plane(self, face: int) -> tuple[int, float]:
         """``(axis, coordinate)`` of box face ``face`` (index into ``boundary_names``)."""
         axis, side = divmod(face, 2)

@@ -55,6 +55,15 @@ class PlaneGeometry:
         """The space dimension, 2."""
         return 2
 
+    def on_boundary(self, points, tol: float) -> npt.NDArray[np.bool_]:
+        """``(n, num_edges)`` mask of the boundary edges each point lies on (within ``tol``)."""
+        points = np.asarray(points, dtype=float)
+        a, b = self.boundary, np.roll(self.boundary, -1, axis=0)
+        ab = b - a
+        rel = points[:, None, :] - a[None]
+        s = np.clip(np.einsum("nei,ei->ne", rel, ab) / np.einsum("ei,ei->e", ab, ab), 0.0, 1.0)
+        return np.linalg.norm(rel - s[..., None] * ab[None], axis=2) <= tol
+
     def fracture_lengths(self) -> npt.NDArray[np.float64]:
         """Length of every fracture (m)."""
         return np.array([np.linalg.norm(np.diff(p, axis=0), axis=1).sum() for p in self.fractures])

@@ -70,7 +70,7 @@ class LineSampler:
         nc = msh.topology.index_map(msh.topology.dim).size_local
         owned = np.arange(nc, dtype=np.int32)
         tree = dolfinx.geometry.bb_tree(msh, msh.topology.dim, entities=owned)
-        x3 = np.column_stack([self.points, np.zeros(len(self.points))])
+        x3 = np.column_stack([self.points, np.zeros((len(self.points), 3 - self.points.shape[1]))])
         candidates = dolfinx.geometry.compute_collisions_points(tree, x3)
         hits = dolfinx.geometry.compute_colliding_cells(msh, candidates, x3)
         orig = np.asarray(msh.topology.original_cell_index, dtype=np.float64)
@@ -119,8 +119,8 @@ class LineSampler:
 
         Args:
             values: One value per owned cell.
-            gradients: Optional ``(nc, 2)`` cell gradients for a linear reconstruction.
-            centroids: Cell centres ``(nc, 2)``, required with ``gradients``.
+            gradients: Optional ``(nc, d)`` cell gradients for a linear reconstruction.
+            centroids: Cell centres ``(nc, d)``, required with ``gradients``.
         """
         c = np.maximum(self._cell, 0)
         local = np.asarray(values)[c] if len(values) else np.zeros(len(c))

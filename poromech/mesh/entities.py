@@ -20,10 +20,12 @@ import numpy.typing as npt
 __all__ = [
     "CellGeometry",
     "cell_geometry",
+    "facet_ridges",
     "facet_vertices",
     "fracture_segments",
     "input_cells",
     "owned_cell_values",
+    "ridge_coordinates",
     "vertex_coordinates",
 ]
 
@@ -109,6 +111,30 @@ def facet_vertices(msh: dolfinx.mesh.Mesh, facets: npt.NDArray[np.int32]) -> npt
     tdim = msh.topology.dim
     f2v = msh.topology.connectivity(tdim - 1, 0)
     return f2v.array.reshape(-1, tdim)[facets]
+
+
+def facet_ridges(msh: dolfinx.mesh.Mesh, facets: npt.NDArray[np.int32]) -> npt.NDArray:
+    """Entities of dimension ``d - 2`` of facets, ``(n, d)``: vertices in 2D, edges in 3D."""
+    tdim = msh.topology.dim
+    if tdim == 2:
+        return facet_vertices(msh, facets)
+    msh.topology.create_entities(tdim - 2)
+    msh.topology.create_connectivity(tdim - 1, tdim - 2)
+    f2e = msh.topology.connectivity(tdim - 1, tdim - 2)
+    return f2e.array.reshape(-1, tdim)[facets]
+
+
+def ridge_coordinates(msh: dolfinx.mesh.Mesh, ridges: npt.NDArray[np.int32]) -> npt.NDArray:
+    """End points ``(n, d - 1, d)`` of entities of dimension ``d - 2`` (2D: vertices)."""
+    tdim, gdim = msh.topology.dim, msh.geometry.dim
+    ridges = np.asarray(ridges, dtype=np.int32)
+    if len(ridges) == 0:
+        return np.empty((0, tdim - 1, gdim))
+    if tdim == 2:
+        return vertex_coordinates(msh, ridges)[:, None, :]
+    msh.topology.create_connectivity(tdim - 2, tdim)
+    nodes = dolfinx.mesh.entities_to_geometry(msh, tdim - 2, ridges)
+    return msh.geometry.x[nodes][:, :, :gdim]
 
 
 def vertex_coordinates(msh: dolfinx.mesh.Mesh, vertices: npt.NDArray[np.int32]) -> npt.NDArray:

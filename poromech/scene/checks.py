@@ -52,10 +52,10 @@ def check_components(key: str, value, dim: int) -> None:
 
 
 def _check_3d(scene: Scene) -> None:
-    """What 3D scenes can do in this version: mechanics, fractures open or in Nitsche contact."""
-    if scene.physics != "mechanics":
+    """What 3D scenes can do in this version: mechanics and flow."""
+    if scene.physics not in ("mechanics", "flow"):
         raise ConfigError(f"scene key 'physics' = {scene.physics!r} is not available in 3D yet "
-                          "(a box domain): 3D runs physics 'mechanics'")
+                          "(a box domain): 3D runs physics 'mechanics' or 'flow'")
 
 
 def _check_mechanics(scene: Scene, geo: PlaneGeometry) -> None:
@@ -223,9 +223,12 @@ _FRACTURE_DEFAULTS = {
 
 
 def _check_flow_permeability(perm, geo: PlaneGeometry, times) -> None:
-    """Permeability: 1, 2 or 3 components forming an SPD tensor everywhere."""
-    allowed = "[k], [k_xx, k_yy] or [k_xx, k_xy, k_yy]"
-    if len(perm) not in (1, 2, 3):
+    """Permeability: 1, 2 or 3 components (3D: 1, 3 or 6) forming an SPD tensor everywhere."""
+    allowed, counts = "[k], [k_xx, k_yy] or [k_xx, k_xy, k_yy]", (1, 2, 3)
+    if geo.dim == 3:
+        allowed = "[k], [k_xx, k_yy, k_zz] or [k_xx, k_xy, k_xz, k_yy, k_yz, k_zz] in 3D"
+        counts = (1, 3, 6)
+    if len(perm) not in counts:
         raise ConfigError(f"scene key 'flow.permeability' has {len(perm)} entries "
                           f"(allowed: {allowed})")
     check_permeability(perm, grid_points(geo), times)
@@ -236,18 +239,29 @@ def _check_flow_boundaries(scene: Scene, geo: PlaneGeometry) -> None:
     flow = scene.flow
     known = set(geo.boundary_names)
     used: set[str] = set()
+    whole: set[str] = set()
     for i, bc in enumerate(flow.boundary_conditions):
         path = f"flow.boundary_conditions.{i}"
         check_boundary_name(f"{path}.boundary", bc.boundary, known)
-        if bc.boundary in used:
+        if bc.boundary in used and (bc.where is None or bc.boundary in whole):
             raise ConfigError(f"scene key '{path}.boundary' = {bc.boundary!r} already has a "
-                              "flow condition (one per boundary)")
+                              "flow condition (one per boundary, or several each with a where)")
         used.add(bc.boundary)
+        if bc.where is None:
+            whole.add(bc.boundary)
         if (bc.pressure is None) == (bc.flux is None):
             raise ConfigError(f"scene key '{path}' needs exactly one of pressure, flux")
         points, times = edge_points(geo, bc.boundary), check_times(scene)
         for kind in ("pressure", "flux"):
             check_expression(getattr(bc, kind), points, f"{path}.{kind}", None, times)
+        if bc.where is not None:
+            if bc.where.depends_on_time:
+                raise ConfigError(f"scene key '{path}.where' = {format_value(bc.where.source)} "
+                                  "depends on t (allowed: an expression in x, y, z)")
+            if not np.any(bc.where(points, 0.0) != 0):
+                raise ConfigError(f"scene key '{path}.where' = {format_value(bc.where.source)} "
+                                  f"is zero everywhere on boundary {bc.boundary!r} (allowed: "
+                                  "an expression nonzero on part of it)")
     transient_storage = scene.time is not None and flow.biot_modulus is not None
     if not transient_storage and all(bc.pressure is None for bc in flow.boundary_conditions):
         raise ConfigError(

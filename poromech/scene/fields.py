@@ -99,6 +99,8 @@ def _mesh_points(fm: FracturedMesh) -> _Points:
     facets = facet_points(np.arange(nf, dtype=np.int32))
     bnd = facet_points(fm.boundary_facets)
     frac = facet_points(fm.fractures.facets)
+    if tdim == 3:  # the flow's fracture nodes are the edges: their midpoints
+        frac = 0.5 * (frac + frac[:, [1, 2, 0]])
     return _Points(
         centroids=cells.mean(axis=1),
         cell_nodes=cells.reshape(-1, d),
@@ -116,15 +118,10 @@ def _edges(fm: FracturedMesh, name: str) -> list[int]:
     return [i for i, n in enumerate(fm.geometry.boundary_names) if n == name]
 
 
-def _on_edges(points: Array, polygon: Array, edges: list[int]) -> Array:
-    """The points lying on the given domain polygon edges."""
-    tol = 1e-8 * float(np.linalg.norm(polygon.max(axis=0) - polygon.min(axis=0)))
-    keep = np.zeros(len(points), dtype=bool)
-    for e in edges:
-        a, b = polygon[e], polygon[(e + 1) % len(polygon)]
-        s = np.clip((points - a) @ (b - a) / ((b - a) @ (b - a)), 0.0, 1.0)
-        keep |= np.linalg.norm(points - (a + s[:, None] * (b - a)), axis=1) <= tol
-    return points[keep]
+def _on_edges(points: Array, geometry, edges: list[int]) -> Array:
+    """The points lying on the given boundary parts (polygon edges, box faces)."""
+    on = geometry.on_boundary(points, 1e-8 * geometry.diameter)
+    return points[on[:, edges].any(axis=1)]
 
 
 def _meta(cls, name: str) -> dict:
@@ -184,13 +181,14 @@ def _flow_checks(scene: Scene, fm: FracturedMesh, p: _Points, times) -> Iterator
         unknowns = np.concatenate([p.centroids, p.facet_midpoints, p.face_ends])
         yield lambda: check_expression(flow.initial_pressure, unknowns, "flow.initial_pressure",
                                        None, [0.0], "a flow unknown")
-    poly = fm.geometry.boundary
     for i, bc in enumerate(flow.boundary_conditions):
         edges = _edges(fm, bc.boundary)
         pts = [p.boundary_midpoints[0][np.isin(p.boundary_midpoints[1], edges)]]
         if bc.fracture_ends == "inherit":
-            pts.append(_on_edges(p.face_ends, poly, edges))
+            pts.append(_on_edges(p.face_ends, fm.geometry, edges))
         pts = np.concatenate(pts)
+        if bc.where is not None:
+            pts = pts[np.asarray(bc.where(pts, 0.0)) != 0]
         for kind in ("pressure", "flux"):
             yield lambda i=i, kind=kind, pts=pts, bc=bc: check_expression(
                 getattr(bc, kind), pts, f"flow.boundary_conditions.{i}.{kind}", None, times,

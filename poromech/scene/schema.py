@@ -360,6 +360,12 @@ class FlowBoundaryCondition:
         default=None,
         metadata=doc("imposed outward volumetric flux per area (negative: inflow)", "m/s"),
     )
+    where: Expr | None = field(
+        default=None,
+        metadata=doc("restrict the condition to the boundary faces whose centre makes this "
+                     "expression nonzero (e.g. \"z > 90\"); the rest of the boundary is "
+                     "impervious unless another condition with a where covers it"),
+    )
     fracture_ends: Literal["inherit", "no_flow"] = field(
         default="inherit",
         metadata=doc("fracture ends on this boundary: inherit its condition (pressure, or the "
@@ -389,8 +395,9 @@ class Flow:
     """Single-phase Darcy flow in matrix and fractures (HFV, DESIGN §5)."""
 
     permeability: tuple[Expr, ...] = field(
-        metadata=doc("matrix permeability: [k] (or k) or [k_xx, k_yy] or [k_xx, k_xy, k_yy]",
-                     "m²")
+        metadata=doc("matrix permeability: [k] (or k), [k_xx, k_yy] or [k_xx, k_xy, k_yy] "
+                     "in 2D; [k], [k_xx, k_yy, k_zz] or [k_xx, k_xy, k_xz, k_yy, k_yz, k_zz] "
+                     "in 3D", "m²")
     )
     viscosity: float = field(default=1e-3, metadata=doc("fluid viscosity η", "Pa·s", gt=0))
     fluid_density: float | None = field(

@@ -186,16 +186,44 @@ def check_permeability(perm, points: np.ndarray, times, what: str = "") -> None:
     """Refuse the first point where the permeability tensor is not finite and SPD."""
     x, y = points[:, 0], points[:, 1]
     steps = times if any(e.depends_on_time for e in perm) else times[:1]
+    three = points.shape[1] == 3
     for t in steps:
-        k = [e(points, t) for e in perm]
-        kxx, kyy = k[0], k[-1]
-        det = kxx * kyy - (k[1] ** 2 if len(k) == 3 else 0.0)
-        bad = ~(np.isfinite(det) & (kxx > 0) & (kyy > 0) & (det > 0))
+        k = [np.broadcast_to(e(points, t), x.shape) for e in perm]
+        if three:
+            bad = ~_positive_definite_3d(k)
+        else:
+            kxx, kyy = k[0], k[-1]
+            det = kxx * kyy - (k[1] ** 2 if len(k) == 3 else 0.0)
+            bad = ~(np.isfinite(det) & (kxx > 0) & (kyy > 0) & (det > 0))
         if bad.any():
             i = int(np.flatnonzero(bad)[0])
             value = [float(c[i]) for c in k]
             where = f" ({what})" if what else ""
+            if three:
+                raise ConfigError(
+                    f"scene key 'flow.permeability' = {value} at x={x[i]:g}, y={y[i]:g}, "
+                    f"z={points[i, 2]:g}{where} is not allowed: must be a finite, positive "
+                    "definite tensor")
             raise ConfigError(
                 f"scene key 'flow.permeability' = {value} at x={x[i]:g}, y={y[i]:g}{where} is "
                 "not allowed: must be positive definite (k_xx > 0, k_yy > 0, k_xx k_yy > k_xy²)"
             )
+
+
+def _positive_definite_3d(k: list[np.ndarray]) -> np.ndarray:
+    """Finite and positive definite 3D tensors from 1, 3 or 6 components (mask per point)."""
+    n = len(k[0])
+    if len(k) == 1:
+        T = k[0][:, None, None] * np.eye(3)[None]
+    elif len(k) == 3:
+        T = np.stack(k, -1)[..., None] * np.eye(3)[None]
+    else:
+        xx, xy, xz, yy, yz, zz = k
+        T = np.stack([np.stack([xx, xy, xz], -1), np.stack([xy, yy, yz], -1),
+                      np.stack([xz, yz, zz], -1)], -2)
+    ok = np.isfinite(T).all(axis=(1, 2))
+    out = np.zeros(n, dtype=bool)
+    if ok.any():
+        scale = np.abs(T[ok]).max(axis=(1, 2))
+        out[ok] = np.linalg.eigvalsh(T[ok] / scale[:, None, None]).min(axis=1) > 1e-14
+    return out

@@ -23,6 +23,7 @@ from poromech.flow.boundary import FlowBoundary
 from poromech.flow.hfv import cell_gradients, isotropic_tensor
 from poromech.flow.problem import DarcyProblem, FlowProperties, TimeStep
 from poromech.flow.setup import problem_from_scene
+from poromech.geometry.box import BoxGeometry, Fracture3D
 from poromech.geometry.plane import PlaneGeometry
 from poromech.io.probes import LineSampler
 from poromech.mesh.fractured import FracturedMesh, distribute_mesh
@@ -55,7 +56,7 @@ def rectangle(x0: float, y0: float, x1: float, y1: float, fractures=()) -> Plane
                          tuple(f"f{i}" for i in range(len(fr))))
 
 
-def uniform_mesh(comm: MPI.Comm, geo: PlaneGeometry, size: float, refinement: int = 0,
+def uniform_mesh(comm: MPI.Comm, geo: PlaneGeometry | BoxGeometry, size: float, refinement: int = 0,
                  owner=None) -> FracturedMesh:
     """Mesh ``geo`` with a uniform target size and ``refinement`` splits (collective).
 
@@ -67,6 +68,10 @@ def uniform_mesh(comm: MPI.Comm, geo: PlaneGeometry, size: float, refinement: in
         owner: Optional callable ``owner(centroids) -> ranks`` imposing the partition.
     """
     sizes = MeshSizes(size, size, size, size, refinement)
+    if geo.dim == 3:
+        from poromech.mesh.generate3d import generate_mesh_3d
+
+        return distribute_mesh(comm, geo, lambda: generate_mesh_3d(geo, sizes), owner)
     return distribute_mesh(comm, geo, lambda: generate_mesh(geo, sizes), owner)
 
 
@@ -90,12 +95,16 @@ class JumpSolution:
     ``(0, 0)`` to ``(0, 1)``, so its ``+`` side is ``x > 0``. Fracture ends are impervious
     (``g' = 0`` at ``y = 0, 1``).
 
+    With ``dim = 3`` the domain is ``(-1, 1) × (0, 1)²``, the fracture the square ``{x = 0}``
+    (``+`` side ``x > 0``) and ``g = cos(π y) cos(π z)``; its edges on the box are impervious.
+
     Attributes:
         a: Trace factor on the ``-`` side (``x < 0``).
         c: Trace factor on the ``+`` side (``x > 0``).
         T_f: Normal transmissibility ``2 Λ_f,n / d_f`` (m).
         C_f: Fracture conductivity (m³).
         aperture: Aperture used to express ``T_f`` (m).
+        dim: Space dimension, 2 or 3.
     """
 
     a: float = 2.0
@@ -103,30 +112,42 @@ class JumpSolution:
     T_f: float = 3.0
     C_f: float = 1.0
     aperture: float = 0.02
+    dim: int = 2
 
-    def geometry(self) -> PlaneGeometry:
-        """``(-1, 1) × (0, 1)`` with the fracture ``{x = 0}``."""
+    def geometry(self) -> PlaneGeometry | BoxGeometry:
+        """``(-1, 1) × (0, 1)`` (3D: ``× (0, 1)``) with the fracture ``{x = 0}``."""
+        if self.dim == 3:
+            square = [[0.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 1.0], [0.0, 1.0, 0.0]]
+            return BoxGeometry((-1.0, 0.0, 0.0, 1.0, 1.0, 1.0),
+                               (Fracture3D.polygon("f0", square),))
         return rectangle(-1.0, 0.0, 1.0, 1.0, [[[0.0, 0.0], [0.0, 1.0]]])
 
+    def g(self, points) -> Array:
+        """``cos(π y)`` (3D: ``cos(π y) cos(π z)``)."""
+        out = np.cos(np.pi * points[:, 1])
+        if self.dim == 3:
+            out = out * np.cos(np.pi * points[:, 2])
+        return out
+
     def p_m(self, points, t=0.0):
-        """Matrix pressure (Pa) at points ``(n, 2)``."""
-        x, y = points[:, 0], points[:, 1]
+        """Matrix pressure (Pa) at points ``(n, d)``."""
+        x = points[:, 0]
         left = self.a - self.T_f * (self.a - 1) * x + x**2
         right = self.c + self.T_f * (self.c - 1) * x + x**2
-        return np.cos(np.pi * y) * np.where(x < 0, left, right)
+        return self.g(points) * np.where(x < 0, left, right)
 
     def p_f(self, points, t=0.0):
-        """Fracture pressure (Pa) at points ``(n, 2)``."""
-        return np.cos(np.pi * points[:, 1])
+        """Fracture pressure (Pa) at points ``(n, d)``."""
+        return self.g(points)
 
     def source(self, points, t=0.0):
         """``q = -Δp_m`` (1/s)."""
-        return np.pi**2 * self.p_m(points) - 2.0 * np.cos(np.pi * points[:, 1])
+        return (self.dim - 1) * np.pi**2 * self.p_m(points) - 2.0 * self.g(points)
 
     def fracture_source(self, points, t=0.0):
-        """``q_f = -C_f p_f'' - T_f (p⁺ - p_f) - T_f (p⁻ - p_f)`` (m/s)."""
-        g = np.cos(np.pi * points[:, 1])
-        return self.C_f * np.pi**2 * g - self.T_f * g * (self.a + self.c - 2.0)
+        """``q_f = -C_f Δ_τ p_f - T_f (p⁺ - p_f) - T_f (p⁻ - p_f)`` (m/s)."""
+        g = self.g(points)
+        return (self.dim - 1) * self.C_f * np.pi**2 * g - self.T_f * g * (self.a + self.c - 2.0)
 
     def problem(self, fm: FracturedMesh, **kwargs) -> DarcyProblem:
         """The HFV problem of this solution on ``fm`` (collective)."""
@@ -134,27 +155,30 @@ class JumpSolution:
         nf = len(fm.fractures.facets)
         nan = np.full(nf, np.nan)
         props = FlowProperties(
-            permeability=isotropic_tensor(np.ones(nc)), viscosity=1.0,
+            permeability=isotropic_tensor(np.ones(nc), self.dim), viscosity=1.0,
             aperture=np.full(nf, self.aperture), fracture_permeability=nan,
             normal_permeability=np.full(nf, 0.5 * self.T_f * self.aperture),
             conductivity=np.full(nf, self.C_f), storage=np.zeros(nc),
         )
-        bcs = [FlowBoundary("sides", (1, 3), "pressure", self.p_m),
-               FlowBoundary("ends", (0, 2), "pressure", self.p_m, "no_flow")]
+        sides, ends = ((1, 3), (0, 2)) if self.dim == 2 else ((0, 1), (2, 3, 4, 5))
+        bcs = [FlowBoundary("sides", sides, "pressure", self.p_m),
+               FlowBoundary("ends", ends, "pressure", self.p_m, "no_flow")]
         return DarcyProblem(fm, props, bcs, self.source, self.fracture_source, **kwargs)
 
     def errors(self, problem: DarcyProblem) -> dict[str, float]:
         """Discrete L² errors of cell, trace, fracture and node pressures (collective)."""
         comm, g, f = problem.comm, problem.geom, problem.faces
-        y = f.midpoint[:, 1]
-        exact_traces = np.column_stack([self.c * np.cos(np.pi * y), self.a * np.cos(np.pi * y)])
+        g_mid = self.g(f.midpoint)
+        exact_traces = np.column_stack([self.c * g_mid, self.a * g_mid])
         ends = problem.dofs.points[problem.dofs.node]
+        nv = ends.shape[1]
+        weight = f.measure[:, None] / nv
         return {
             "cell": l2(comm, g.volume, problem.cell_pressure - self.p_m(g.centroid)),
             "trace": l2(comm, f.measure[:, None], problem.trace_pressure - exact_traces),
             "fracture": l2(comm, f.measure, problem.fracture_pressure - self.p_f(f.midpoint)),
-            "node": l2(comm, 0.5 * f.measure[:, None],
-                       problem.node_pressure - self.p_f(ends.reshape(-1, 2)).reshape(-1, 2)),
+            "node": l2(comm, weight, problem.node_pressure
+                       - self.p_f(ends.reshape(-1, self.dim)).reshape(-1, nv)),
         }
 
 
