@@ -210,12 +210,22 @@ def test_scene_with_partial_boundaries(tmp_path):
     assert p1[0] > p1[-1] and np.all(np.isfinite(p1))
 
 
-@pytest.mark.parametrize("change, message", [
-    ({"where": "t > 1"}, "depends on t"),
-    ({"where": "z > 5"}, "is zero everywhere"),
+@pytest.mark.parametrize("key, change, message", [
+    ("flow.boundary_conditions.0.where", {"where": "t > 1"}, "depends on t"),
+    ("flow.boundary_conditions.0.where", {"where": "z > 5"}, "is zero everywhere"),
+    ("flow.permeability", {"permeability": [1e-12, 1e-12]}, "[k], [k_xx, k_yy, k_zz] or"),
+    ("flow.permeability", {"permeability": [1e-12, 2e-12, 1e-12, 1e-12, 0, 1e-12]},
+     "positive definite"),
+    ("flow.boundary_conditions.1.boundary", {"boundary": "left", "where": None},
+     "already has a flow condition"),
 ])
-def test_where_errors(change, message):
+def test_scene_errors(key, change, message):
     raw = json.loads(json.dumps(SCENE))
-    raw["flow"]["boundary_conditions"][0].update(change)
+    if key.startswith("flow.boundary_conditions.0"):
+        raw["flow"]["boundary_conditions"][0].update(change)
+    elif key.startswith("flow.boundary_conditions.1"):
+        raw["flow"]["boundary_conditions"][1].update(change)
+    else:
+        raw["flow"].update(change)
     err = config_error(raw)
-    assert "flow.boundary_conditions.0.where" in err and message in err
+    assert key in err and message in err, err

@@ -84,7 +84,6 @@ def test_box_scene_is_valid_and_3d():
      ("geometry.fractures.0", "polygon, disc")),
     ({"boundary_conditions.0.displacement": [0.0, 0.0]},
      ("boundary_conditions.0.displacement", "2 components", "3D")),
-    ({"physics": "flow"}, ("physics", "3D")),
 ])
 def test_3d_scene_errors_are_one_line(changes, fragments):
     refused(changes, *fragments)

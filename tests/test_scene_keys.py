@@ -116,6 +116,7 @@ VARIANTS: dict[str, tuple[object, dict]] = {
     "flow.boundary_conditions.0.boundary": ("top", {}),
     "flow.boundary_conditions.0.pressure": (1.0e4, {}),
     "flow.boundary_conditions.0.flux": (1.0e-7, {"flow.boundary_conditions.0.pressure": DELETE}),
+    "flow.boundary_conditions.0.where": ("y > 0.3", {}),
     "flow.boundary_conditions.0.fracture_ends": (
         "no_flow", {"geometry.fractures.0.points": [[0.0, 0.38], [0.7, 0.62]]}),
     "flow.initial_pressure": (1.0e4, {}),

@@ -4,7 +4,8 @@ Matrix (Kim, Tchelepi & Juanes 2011): ``β_K (p - p_in)`` added to the storage o
 ``β_K = factor · b² / K_dr`` with the drained bulk modulus ``K_dr = λ + 2μ/d`` (``λ + μ`` in
 plane strain). Fractures: ``β_f (p_f - p_f,in)`` added to the volume balance of each fracture
 face, ``β_f = factor · π (1 - ν²) a / E``, the mean opening per unit pressure of a pressurized
-crack of half-length ``a`` (plane strain): it gives the fracture pressure a response to the
+crack of half-length ``a`` (plane strain; in 3D that of a penny-shaped crack of the fracture's
+radius): it gives the fracture pressure a response to the
 volume change where the matrix cannot drain the fractures (an impervious matrix seals them).
 ``p_in`` is the input pressure of ``g``.
 
@@ -31,8 +32,15 @@ def matrix_fixed_stress(factor: float, biot: float, young: Array, poisson: Array
 
 
 def fracture_fixed_stress(factor: float, half_length: Array, young: Array,
-                          poisson: Array) -> Array:
-    """``β_f = factor · π (1 - ν²) a / E`` (m/Pa), ``a`` the half-length of the fracture."""
+                          poisson: Array, dim: int = 2) -> Array:
+    """``β_f = factor · π (1 - ν²) a / E`` (m/Pa), ``a`` the half-length of the fracture.
+
+    In 3D ``a`` is the radius of the fracture (of the disc of the same area for a polygon) and
+    ``β_f = factor · 16 (1 - ν²) a / (3 π E)``, the mean opening per unit pressure of a
+    pressurized penny-shaped crack (Sneddon).
+    """
+    if dim == 3:
+        return factor * 16.0 * (1 - poisson**2) * half_length / (3.0 * np.pi * young)
     return factor * np.pi * (1 - poisson**2) * half_length / young
 
 

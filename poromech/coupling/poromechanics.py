@@ -220,12 +220,16 @@ class Poromechanics:
                                        self.fm.msh.geometry.dim)
         fracture = None
         if self.nf_global > 0 and not steady:
-            f = self.fm.fractures
-            half = 0.5 * self.fm.geometry.fracture_lengths()[f.fracture]
+            f, geo = self.fm.fractures, self.fm.geometry
+            if geo.dim == 3:  # the radius of the disc of the same area
+                size = np.sqrt(np.array([fr.area for fr in geo.fractures]) / np.pi)
+            else:
+                size = 0.5 * geo.fracture_lengths()
+            half = size[f.fracture]
             young_f, nu_f = self._moduli(f.midpoint)
 
             def fracture(factor: float) -> Array:
-                return fracture_fixed_stress(factor, half, young_f, nu_f)
+                return fracture_fixed_stress(factor, half, young_f, nu_f, geo.dim)
 
         return FixedStress(beta, fracture, c.fracture_stabilization)
 

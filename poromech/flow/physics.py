@@ -22,6 +22,7 @@ from poromech.flow.problem import DarcyProblem, TimeStep
 from poromech.flow.setup import flow_properties, problem_from_scene, time_dependent
 from poromech.flow.state import FlowState
 from poromech.io.probes import LineSampler, open_probes
+from poromech.mesh.entities import fracture_segments
 from poromech.physics import Keyed, StepResult
 from poromech.scene.schema import Scene
 
@@ -42,15 +43,16 @@ def solve_record(problem: DarcyProblem, t: float, step: TimeStep | None) -> dict
     }
 
 
-def probe_faces(problem: DarcyProblem) -> tuple | None:
-    """The owned fracture faces for probes: segments between their node unknowns, keys.
+def probe_faces(problem: DarcyProblem) -> tuple:
+    """The owned fracture faces for probes, and their keys.
 
-    None in 3D: a line there samples the matrix only (its ``p_f`` column is empty).
+    In 2D the segments between their node unknowns, in 3D the triangles.
     """
     fm = problem.fm
+    keys = fm.fractures.index.astype(np.float64)
     if problem.dim == 3:
-        return None
-    return problem.dofs.points[problem.dofs.node], fm.fractures.index.astype(np.float64)
+        return fracture_segments(fm.msh, fm.fractures.facets), keys
+    return problem.dofs.points[problem.dofs.node], keys
 
 
 def pressure_columns(problem: DarcyProblem, probe, sampler: LineSampler) -> dict:

@@ -86,6 +86,8 @@ class LineSampler:
         return cell, _global_choice(self.comm, key)
 
     def _locate_faces(self, segments: Array, keys: Array):
+        if segments.shape[-1] == 3:
+            return self._locate_triangles(segments, keys)
         direction = self.end - self.start
         length = float(np.linalg.norm(direction))
         unit = direction / length
@@ -101,6 +103,29 @@ class LineSampler:
         face = np.full(len(t), -1, dtype=np.int64)
         for k in np.flatnonzero(along):  # faces on the line only
             inside = (t >= lo[k]) & (t <= hi[k]) & (keys[k] < key)
+            key[inside], face[inside] = keys[k], k
+        return face, _global_choice(self.comm, key)
+
+    def _locate_triangles(self, triangles: Array, keys: Array):
+        """3D: the fracture triangle holding each point, for a line lying in a fracture plane."""
+        self._face_ends = None
+        a = triangles[:, 0]
+        e1, e2 = triangles[:, 1] - a, triangles[:, 2] - a
+        normal = np.cross(e1, e2)
+        normal /= np.linalg.norm(normal, axis=1)[:, None]
+        tol = 1e-8 * max(float(np.linalg.norm(self.end - self.start)),
+                         float(np.abs(triangles).max(initial=1.0)))
+        coplanar = ((np.abs(np.einsum("ni,ni->n", self.start - a, normal)) <= tol)
+                    & (np.abs(np.einsum("ni,ni->n", self.end - a, normal)) <= tol))
+        key = np.full(len(self.points), np.inf)
+        face = np.full(len(self.points), -1, dtype=np.int64)
+        for k in np.flatnonzero(coplanar):
+            g = np.array([[e1[k] @ e1[k], e1[k] @ e2[k]], [e1[k] @ e2[k], e2[k] @ e2[k]]])
+            rhs = np.column_stack([(self.points - a[k]) @ e1[k], (self.points - a[k]) @ e2[k]])
+            lam = np.linalg.solve(g, rhs.T).T
+            eps = 1e-9
+            inside = ((lam[:, 0] >= -eps) & (lam[:, 1] >= -eps) & (lam.sum(axis=1) <= 1 + eps)
+                      & (keys[k] < key))
             key[inside], face[inside] = keys[k], k
         return face, _global_choice(self.comm, key)
 
@@ -148,13 +173,14 @@ class LineSampler:
         Args:
             values: One value per owned face (at its midpoint).
             end_values: Optional ``(nf, 2)`` values at the face ends (same order as the
-                segments): the result is then linear between each end and the midpoint.
+                segments): the result is then linear between each end and the midpoint (2D;
+                in 3D the face value holds on the whole triangle).
         """
         if self._face is None:
             return None if self.comm.rank else np.full(len(self.points), np.nan)
         f = np.maximum(self._face, 0)
         local = np.asarray(values)[f] if len(values) else np.zeros(len(f))
-        if end_values is not None and len(values):
+        if end_values is not None and len(values) and self._face_ends is not None:
             s0, s1 = self._face_ends[f, 0], self._face_ends[f, 1]
             mid = 0.5 * (s0 + s1)
             near1 = np.abs(self.arc_length - s1) < np.abs(self.arc_length - s0)
@@ -267,7 +293,8 @@ def open_probes(msh: dolfinx.mesh.Mesh, probes, outdir: Path, faces: tuple[Array
         msh: The mesh.
         probes: The scene's ``probes``.
         outdir: Output directory (``probe_<name>.csv``).
-        faces: The owned fracture faces as ``(segments (nf, 2, d), keys)``, or None.
+        faces: The owned fracture faces as ``(segments (nf, 2, 2), keys)`` in 2D or
+            ``(triangles (nf, 3, 3), keys)`` in 3D, or None.
         resume_until: When continuing a run, keep the rows up to this time.
     """
     return [(p, ProbeTable(msh.comm, Path(outdir) / f"probe_{p.name}.csv",

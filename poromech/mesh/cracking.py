@@ -83,9 +83,9 @@ def unique_rows(rows: npt.ArrayLike) -> tuple[IntArray, int]:
     Returns:
         ``(ids, number of distinct rows)``.
     """
-    r = np.asarray(rows, dtype=np.int64).reshape(len(rows), -1)
-    if len(r) == 0:
+    if len(rows) == 0:
         return np.empty(0, dtype=np.int64), 0
+    r = np.asarray(rows, dtype=np.int64).reshape(len(rows), -1)
     order = np.lexsort(r.T[::-1])
     s = r[order]
     new = np.concatenate([[True], np.any(s[1:] != s[:-1], axis=1)])

@@ -52,10 +52,7 @@ def check_components(key: str, value, dim: int) -> None:
 
 
 def _check_3d(scene: Scene) -> None:
-    """What 3D scenes can do in this version: mechanics and flow."""
-    if scene.physics not in ("mechanics", "flow"):
-        raise ConfigError(f"scene key 'physics' = {scene.physics!r} is not available in 3D yet "
-                          "(a box domain): 3D runs physics 'mechanics' or 'flow'")
+    """Every physics runs in 3D (a box domain)."""
 
 
 def _check_mechanics(scene: Scene, geo: PlaneGeometry) -> None:
