@@ -13,6 +13,7 @@ from pathlib import Path
 import dolfinx_solver  # noqa: F401, I001  (loads MPI before any DOLFINx/PETSc import in tests)
 
 import pytest
+import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -109,3 +110,34 @@ def config_error(raw) -> str:
     msg = str(info.value)
     assert "\n" not in msg
     return msg
+
+
+def flow_3d_available() -> bool:
+    """Whether this version runs physics 'flow' in a box (3D); False while it is refused."""
+    from poromech.errors import ConfigError
+    from poromech.scene.loading import scene_from_dict
+
+    raw = {"name": "flow3d", "physics": "flow", "mesh": {"size": 0.5},
+           "geometry": {"domain": {"box": [0.0, 0.0, 0.0, 1.0, 1.0, 1.0]}},
+           "flow": {"permeability": [1.0],
+                    "boundary_conditions": [{"boundary": "left", "pressure": 0.0}]}}
+    try:
+        scene_from_dict(raw)
+    except ConfigError as err:
+        if "not available in 3D" in str(err):
+            return False
+        raise
+    return True
+
+
+def is_flow_3d_scene(path: Path) -> bool:
+    """A scene file of physics 'flow' in a box (its geometry inline or by name)."""
+    from poromech.scene.loading import resolve_geometry
+
+    raw = resolve_geometry(yaml.safe_load(Path(path).read_text()))
+    return raw.get("physics") == "flow" and "box" in (raw["geometry"].get("domain") or {})
+
+
+#: Skip a test that runs or validates a 3D flow scene while this version refuses 3D flow.
+needs_flow_3d = pytest.mark.skipif(not flow_3d_available(),
+                                   reason="physics 'flow' is not available in 3D in this version")

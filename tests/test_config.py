@@ -7,7 +7,14 @@ import sys
 import numpy as np
 import pytest
 import yaml
-from conftest import ROOT, config_error, load_script, mechanics_scene
+from conftest import (
+    ROOT,
+    config_error,
+    is_flow_3d_scene,
+    load_script,
+    mechanics_scene,
+    needs_flow_3d,
+)
 
 from poromech.errors import ConfigError
 from poromech.scene.expressions import ExpressionError, compile_expression
@@ -107,7 +114,9 @@ def test_geometry_by_name_and_default_scene():
         load_scene(None, ["geometry=nowhere"])
 
 
-@pytest.mark.parametrize("name", sorted(shipped_scenes()))
+@pytest.mark.parametrize("name", [
+    pytest.param(name, marks=needs_flow_3d) if is_flow_3d_scene(path) else name
+    for name, path in sorted(shipped_scenes().items())])
 def test_shipped_scenes_are_valid(name, caplog):
     """Every shipped scene loads, by name as from its file, and has no key without effect."""
     with caplog.at_level(logging.WARNING, logger="poromech"):

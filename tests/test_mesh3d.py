@@ -7,7 +7,7 @@ import dolfinx_solver  # noqa: F401
 import numpy as np
 import pytest
 import ufl
-from conftest import mechanics_scene, run_parallel
+from conftest import config_error, mechanics_scene, run_parallel
 from dolfinx import fem
 from mpi4py import MPI
 from scipy.spatial import cKDTree
@@ -419,6 +419,44 @@ def test_refinement_multiplies_cells_by_8():
     assert np.isclose(_tri_area(fine.x, fine.fracture_facets).sum(), 0.25)
 
 
+def surfaces_geometry():
+    """A fracture cut by an interface plane z = 0.4, and a patch in the face x = 0."""
+    frac = rect("F", 0, 0.5, (0.2, 0.2), (0.8, 0.8))  # x = 0.5, (y, z) in [0.2, 0.8]^2
+    layer = rect("layer", 2, 0.4, (0.0, 0.0), (1.0, 1.0))
+    patch = rect("patch", 0, 0.0, (0.0, 0.7), (0.3, 1.0))  # x = 0: y in [0, 0.3], z in [0.7, 1]
+    return BoxGeometry(UNIT, (frac,), (layer, patch))
+
+
+def test_conforming_surfaces():
+    """No tet crosses an interface, boundary triangles tile a patch, fractures are unchanged."""
+    geo = surfaces_geometry()
+    check_box_geometry(geo, 0.15)
+    sizes = MeshSizes(0.3, 0.15, 0.15, 0.6)
+    ar, rep = build_mesh_3d(geo, sizes)
+    x, cells = ar.x, ar.cells
+    side = np.sign(np.round(x[cells][..., 2] - 0.4, 12))
+    assert np.all((side.min(axis=1) >= 0) | (side.max(axis=1) <= 0))
+    tri = ar.boundary_facets[ar.boundary_edge == 0]
+    c = x[tri].mean(axis=1)
+    inside = (c[:, 1] < 0.3) & (c[:, 2] > 0.7)
+    assert np.isclose(_tri_area(x, tri[inside]).sum(), 0.09, rtol=1e-12)
+    assert np.isclose(_tri_area(x, ar.fracture_facets).sum(), 0.36, rtol=1e-12)
+    assert rep.tip_curves == 6  # 4 edges, the 2 crossing z = 0.4 cut in two; the cut no tip
+    assert np.all(ar.fracture_id == 0) and rep.bisected_edges == 0
+
+
+def test_conforming_surfaces_rejected():
+    frac = rect("F", 0, 0.5, (0.2, 0.2), (0.8, 0.8))
+    outside = rect("S", 2, 0.4, (0.0, 0.0), (1.2, 1.0))
+    msg = _reject(BoxGeometry(UNIT, (frac,), (outside,)))
+    assert "surface 'S'" in msg and "outside the box" in msg
+    overlap = rect("S", 0, 0.5, (0.0, 0.0), (0.5, 0.5))
+    msg = _reject(BoxGeometry(UNIT, (frac,), (overlap,)))
+    assert "surface 'S' overlaps fracture 'F' in its plane" in msg
+    flat = _poly("S", [[0.1, 0.1, 0.1], [0.5, 0.5, 0.5], [0.9, 0.9, 0.9]])
+    assert "surface 'S' is degenerate" in _reject(BoxGeometry(UNIT, (), (flat,)))
+
+
 # ------------------------------------------------------------------------------------------------
 # Cracked topology: copy counts against a geometric classification
 
@@ -708,3 +746,9 @@ def test_cracked_space_two_ranks():
         name, force = key.split()
         _check_summary(name, s, force == "True")
     assert result["network True"]["faces_with_ghost_side"] > 0
+
+
+def test_surfaces_refused_in_2d():
+    raw = mechanics_scene()
+    raw["geometry"]["surfaces"] = [{"polygon": [[0, 0, 0], [1, 0, 0], [1, 1, 0]]}]
+    assert "'geometry.surfaces' is for a box (3D) only" in config_error(raw)

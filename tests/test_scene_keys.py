@@ -47,6 +47,8 @@ NOT_WALKED = {
     "geometry.fractures.0.disc.normal": "a 3D disc fracture (tests/test_mechanics3d.py)",
     "geometry.fractures.0.disc.radius": "a 3D disc fracture (tests/test_mechanics3d.py)",
     "geometry.fractures.0.name": "a label: names the fracture in fractures.csv and flow.fractures",
+    "geometry.surfaces.0.polygon": "3D mesh conformity (tests/test_mesh3d.py, configs/berre_*)",
+    "geometry.surfaces.0.name": "a label for messages",
     "geometry.fracture_file": "an alternative fracture source (tests/test_mesh_import.py)",
     "geometry.mesh.file": "an alternative geometry source (tests/test_mesh_import.py)",
     "geometry.mesh.fractures": "part of geometry.mesh (tests/test_mesh_import.py)",

@@ -341,6 +341,8 @@ class BoxGeometry:
     Attributes:
         box: ``(x0, y0, z0, x1, y1, z1)`` (m).
         fractures: The fractures.
+        surfaces: Polygons the mesh conforms to that are not fractures (interfaces of data
+            given by expressions, outlines of boundary-condition patches in the box faces).
         boundary_names: Face names, face ``i`` on axis ``i // 2`` at its lower (even ``i``) or
             upper (odd ``i``) end: x-, x+, y-, y+, z-, z+.
         dim: 3.
@@ -348,6 +350,7 @@ class BoxGeometry:
 
     box: tuple[float, ...]
     fractures: tuple[Fracture3D, ...] = ()
+    surfaces: tuple[Fracture3D, ...] = ()
     boundary_names: ClassVar[tuple[str, ...]] = BOX_FACES
     dim: ClassVar[int] = 3
 
@@ -357,6 +360,7 @@ class BoxGeometry:
             raise GeometryError(f"box needs 6 numbers (x0, y0, z0, x1, y1, z1), not {len(box)}")
         object.__setattr__(self, "box", box)
         object.__setattr__(self, "fractures", tuple(self.fractures))
+        object.__setattr__(self, "surfaces", tuple(self.surfaces))
 
     @property
     def lower(self) -> Array:
@@ -495,8 +499,8 @@ def _polygon_self_intersects(poly: Array, tol: float) -> tuple[int, int] | None:
     return None
 
 
-def _check_polygon(fr: Fracture3D, diameter: float, tol: float) -> None:
-    label = f"fracture '{fr.name}'"
+def _check_polygon(fr: Fracture3D, diameter: float, tol: float, kind: str = "fracture") -> None:
+    label = f"{kind} '{fr.name}'"
     pts = fr.points
     k = len(pts)
     if k < 3:
@@ -549,7 +553,8 @@ def _extreme_point(fr: Fracture3D, direction: Array) -> Array:
     return fr.center + (fr.radius * u / norm if norm > 0 else 0.0)
 
 
-def _check_inside_box(geo: BoxGeometry, fr: Fracture3D, tol: float) -> None:
+def _check_inside_box(geo: BoxGeometry, fr: Fracture3D, tol: float,
+                      kind: str = "fracture") -> None:
     lo, hi = _extent(fr)
     over = np.concatenate([geo.lower - lo, hi - geo.upper])  # x-, y-, z-, x+, y+, z+
     face_of = [0, 2, 4, 1, 3, 5]
@@ -562,7 +567,7 @@ def _check_inside_box(geo: BoxGeometry, fr: Fracture3D, tol: float) -> None:
                             f"through face '{face}'")
     out = np.maximum(np.maximum(geo.lower - fr.points, fr.points - geo.upper), 0).max(axis=1)
     p = fr.points[int(np.argmax(out))]
-    raise GeometryError(f"fracture '{fr.name}' has point {_pt(p)} outside the box by "
+    raise GeometryError(f"{kind} '{fr.name}' has point {_pt(p)} outside the box by "
                         f"{_fmt(out.max())} m (face '{face}')")
 
 
@@ -749,6 +754,8 @@ def check_box_geometry(geo: BoxGeometry, fracture_size: float | None = None) -> 
     long, and no near misses of less than ``fracture_size / 2`` (a gap between fractures or to a
     face, a fracture passing through another by less, an intersection line ending that close to
     a fracture edge). Crossings (X), T-junctions and fractures reaching the box are allowed.
+    Finally the conforming surfaces: polygons as above, in the box or in one of its faces, not
+    overlapping a fracture in its plane.
 
     Args:
         geo: The geometry.
@@ -775,3 +782,21 @@ def check_box_geometry(geo: BoxGeometry, fracture_size: float | None = None) -> 
         _check_box_faces(geo, fr, tol, delta, fracture_size)
     for i, j in _boxes_near(geo, max(delta, tol)):
         _check_pair(geo.fractures[i], geo.fractures[j], tol, delta, fracture_size)
+    _check_surfaces(geo, tol)
+
+
+def _check_surfaces(geo: BoxGeometry, tol: float) -> None:
+    """Conforming surfaces: valid polygons in the box (a box face allowed), no fracture's plane.
+
+    A surface may cross fractures (their mesh is then split along the line, not the fracture)
+    but not overlap one in its plane: that part would be both a fracture and not.
+    """
+    for s in geo.surfaces:
+        if s.is_disc:
+            raise GeometryError(f"surface '{s.name}' must be a polygon")
+        _check_polygon(s, geo.diameter, tol, kind="surface")
+        _check_inside_box(geo, s, tol, kind="surface")
+        for fr in geo.fractures:
+            if _classify_pair(s, fr, tol)[0] == "coplanar" and _coplanar_overlap(s, fr, tol):
+                raise GeometryError(f"surface '{s.name}' overlaps fracture '{fr.name}' in its "
+                                    "plane")

@@ -32,7 +32,7 @@ from poromech.errors import OutputError
 from poromech.io.xdmf import atomic_write_text, root_write
 
 __all__ = ["LineSampler", "ProbeTable", "line_differences", "open_probes", "read_csv",
-           "write_csv"]
+           "read_number_table", "write_csv"]
 
 Array = npt.NDArray[np.float64]
 
@@ -207,6 +207,32 @@ def read_csv(path: Path) -> tuple[list[str], np.ndarray]:
         rows = list(csv.reader(f))
     data = np.array([[float(v) if v.strip() else np.nan for v in r] for r in rows[1:]])
     return [h.strip() for h in rows[0]], data
+
+
+def read_number_table(path: Path) -> np.ndarray:
+    """Rows of numbers of a comma-separated file without header; Fortran ``D`` exponents allowed.
+
+    The format of the 3D fracture-flow benchmark's data (Berre et al. 2021): ``*_dol_*.csv``
+    hold curves along a line as (arc length, value) column pairs (``0.40000D+01`` is 4.0),
+    ``*_results*.csv`` a row of cell counts and unknowns per refinement. Blank lines are skipped.
+
+    Raises:
+        ValueError: A field is not a number, or the rows differ in length.
+    """
+    rows = []
+    with open(path) as f:
+        for k, line in enumerate(f, start=1):
+            if not line.strip():
+                continue
+            try:
+                rows.append([float(v.strip().replace("D", "e").replace("d", "e"))
+                             for v in line.split(",")])
+            except ValueError:
+                raise ValueError(f"{path}, line {k}: not a row of numbers: {line.strip()!r}")\
+                    from None
+    if len({len(r) for r in rows}) > 1:
+        raise ValueError(f"{path}: rows of different lengths")
+    return np.array(rows, dtype=np.float64)
 
 
 def line_differences(s_ref, p_ref, s, p, keep=None) -> dict[str, float]:

@@ -2,7 +2,9 @@
 
 The fractures (plane polygons and discs) are embedded in the box with the OpenCASCADE
 ``fragment`` operation, which splits them along their intersection lines (X and T junctions)
-and where they reach the box, so the tetrahedra conform to the whole network. Sizes: the
+and where they reach the box, so the tetrahedra conform to the whole network; the conforming
+surfaces of the geometry (polygons that are not fractures) are fragmented in the same way, so
+that no tetrahedron and no boundary triangle straddles them. Sizes: the
 ``fracture_size`` on the fractures grows linearly to ``size`` over ``transition`` (gmsh
 ``Threshold`` of the ``Distance`` to the fracture surfaces), and ``tip_size`` on the tip curves
 (fracture edges that are neither on the box nor on another fracture) grows the same way; the
@@ -108,13 +110,13 @@ def _add_fracture(occ, fr: Fracture3D) -> int:
 
 
 def _build_model(gmsh, geo: BoxGeometry) -> list[list[int]]:
-    """Box and fractures, fragmented; return the surface tags of each fracture."""
+    """Box, fractures and conforming surfaces, fragmented; the surface tags of each fracture."""
     occ = gmsh.model.occ
     box = occ.addBox(*geo.lower, *(geo.upper - geo.lower))
-    tools = [(2, _add_fracture(occ, fr)) for fr in geo.fractures]
+    tools = [(2, _add_fracture(occ, fr)) for fr in (*geo.fractures, *geo.surfaces)]
     _, out_map = occ.fragment([(3, box)], tools)
     occ.synchronize()
-    return [sorted(t for d, t in out_map[1 + j] if d == 2) for j in range(len(tools))]
+    return [sorted(t for d, t in out_map[1 + j] if d == 2) for j in range(len(geo.fractures))]
 
 
 def _face_of(geo: BoxGeometry, bbox, tol: float) -> int:
@@ -149,7 +151,10 @@ def _curve_samples(gmsh, curve: int) -> npt.NDArray[np.float64]:
 
 
 def _tip_curves(gmsh, geo: BoxGeometry, surfaces: list[list[int]], tol: float) -> list[int]:
-    """Boundary curves of fracture surfaces that are neither on the box nor on another fracture."""
+    """Boundary curves of fracture surfaces that are neither on the box nor on another fracture.
+
+    Nor on a conforming surface: one that crosses a fracture cuts its mesh along a line inside it.
+    """
     tips = set()
     for j, ss in enumerate(surfaces):
         bnd = gmsh.model.getBoundary([(2, s) for s in ss], combined=False, oriented=False)
@@ -158,7 +163,8 @@ def _tip_curves(gmsh, geo: BoxGeometry, surfaces: list[list[int]], tol: float) -
             on_box = _face_of(geo, np.concatenate([x.min(axis=0), x.max(axis=0)]), tol) >= 0
             on_other = any(np.all(f.contains(x, tol))
                            for i, f in enumerate(geo.fractures) if i != j)
-            if not (on_box or on_other):
+            on_surface = any(np.all(s.contains(x, tol)) for s in geo.surfaces)
+            if not (on_box or on_other or on_surface):
                 tips.add(c)
     return sorted(tips)
 

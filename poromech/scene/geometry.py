@@ -50,7 +50,9 @@ def scene_geometry(scene: Scene) -> PlaneGeometry | BoxGeometry:
                                                  f.disc.radius))
             else:
                 fractures.append(Fracture3D.polygon(name, np.array(f.polygon, dtype=float)))
-        return BoxGeometry(tuple(float(v) for v in dom.box), tuple(fractures))
+        surfaces = tuple(Fracture3D.polygon(sf.name or str(i + 1), np.array(sf.polygon, float))
+                         for i, sf in enumerate(scene.geometry.surfaces))
+        return BoxGeometry(tuple(float(v) for v in dom.box), tuple(fractures), surfaces)
     if dom.rectangle is not None:
         x0, y0, x1, y1 = dom.rectangle
         boundary = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], dtype=np.float64)
@@ -102,6 +104,9 @@ def check_domain(scene: Scene) -> None:
                         f"edge {e} does not exist (0..{n - 1})"
                     )
     _check_fracture_kinds(scene, dom.box is not None)
+    if scene.geometry.surfaces and dom.box is None:
+        raise ConfigError("scene key 'geometry.surfaces' is for a box (3D) only: in 2D the mesh "
+                          "conforms to fractures and domain edges")
     names = [f.name for f in scene.geometry.fractures if f.name]
     if len(set(names)) != len(names):
         raise ConfigError(f"scene key 'geometry.fractures': fracture names repeat: {names}")

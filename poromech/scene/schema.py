@@ -33,6 +33,7 @@ __all__ = [
     "Probe",
     "Scene",
     "Solver",
+    "Surface",
     "TimeSpec",
     "scene_dimension",
     "step_times",
@@ -99,6 +100,23 @@ class FractureSpec:
 
 
 @dataclass(frozen=True)
+class Surface:
+    """A planar polygon the 3D mesh conforms to without being a fracture (no unknowns, no jump).
+
+    Where data change across a plane that is no fracture: a material interface (a permeability
+    that jumps, given with ``where``), or, lying in a box face, the outline of the part of the
+    face on which a boundary condition acts (its ``where`` selects faces by their centre).
+    """
+
+    polygon: tuple[tuple[float, float, float], ...] = field(
+        metadata=doc("vertices [[x, y, z], ...] of a planar polygon in the box or in a box face",
+                     "m")
+    )
+    name: str = field(default="", metadata=doc("name, for messages (default: its 1-based "
+                                               "number)"))
+
+
+@dataclass(frozen=True)
 class MeshFile:
     """A mesh from a file, with named groups of line elements as fractures and boundaries.
 
@@ -141,6 +159,10 @@ class Geometry:
         default=None, metadata=doc("the matrix domain (required unless mesh is given)")
     )
     fractures: tuple[FractureSpec, ...] = field(default=(), metadata=doc("the fracture network"))
+    surfaces: tuple[Surface, ...] = field(
+        default=(),
+        metadata=doc("3D: polygons the mesh conforms to besides the fractures (below)"),
+    )
     fracture_file: str | None = field(
         default=None,
         metadata=doc("CSV file of fractures instead of fractures: header fracture,x0,y0,x1,y1 "

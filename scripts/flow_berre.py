@@ -1,0 +1,268 @@
+"""Berre et al. (2021) 3D benchmark, case 1 (single fracture) and case 2 (regular network).
+
+Runs ``configs/berre_case1.yaml``, ``berre_case2_conductive.yaml`` and
+``berre_case2_blocking.yaml`` on the refinement levels ``--levels`` (serial; each level has 8
+times the cells of the one before), samples the benchmark's line with the scenes' probe and
+compares the matrix head with the benchmark's reference (USTUTT-MPFA at its finest mesh). The
+published curves of the other methods in the data folder (the HFV scheme UNICE_UNIGE-HFV_Disc at
+the benchmark's coarse meshes) are compared the same way, so the table shows where poromech lies
+among them at comparable cell counts. ``--reference``: the folder of the benchmark's data
+(default ``../shared/data/fracture_flow_3d`` beside the repository). Writes
+``docs/flow/berre.csv``, ``berre.md`` and ``berre_case1.png``, ``berre_case2.png``.
+
+    python scripts/flow_berre.py                 # levels 0-3: 1k to 630k cells, ~10 min
+    python scripts/flow_berre.py --levels 0 1    # a quick look
+    python scripts/flow_berre.py --levels        # the published curves only
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import shlex
+import sys
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import dolfinx_solver  # noqa: F401  (MPI before PETSc/DOLFINx)
+
+import matplotlib
+import numpy as np
+from flow_common import DOCS, ROOT, generated, markdown_table, save_figure, write_csv
+from mpi4py import MPI
+
+from poromech.io.probes import line_differences, read_csv, read_number_table
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+#: The benchmark's data, beside the repository (``../shared`` in CI).
+DEFAULT_REFERENCE = ROOT.parent / "shared" / "data" / "fracture_flow_3d"
+
+#: The reference solution of every case: this method at its finest refinement.
+REFERENCE_METHOD = "USTUTT_MPFA"
+
+#: Published method names as the figures and tables show them.
+LABELS = {"UNICE_UNIGE_HFV_Disc": "UNICE_UNIGE-HFV_Disc", "USTUTT_MPFA": "USTUTT-MPFA"}
+
+#: Columns of a benchmark ``*_results*.csv`` row (Berre et al. 2021, the data repository).
+RESULT_COLUMNS = ("cells_0d", "cells_1d", "cells_2d", "cells_3d", "unknowns", "nonzeros")
+
+
+@dataclass(frozen=True)
+class Case:
+    """One scene of the study and its benchmark data.
+
+    Attributes:
+        name: Key of ``--cases`` and of the rows.
+        scene: Scene file name in ``configs/``.
+        prefix: Prefix of its data files (``single``, ``regular``).
+        cond: ``cond_<k>`` part of the case-2 file names (None for case 1).
+        reference_refinement: Refinement of the reference method's curve.
+        figure: PNG the case is drawn in (one per benchmark case).
+        title: Panel title.
+    """
+
+    name: str
+    scene: str
+    prefix: str
+    cond: int | None
+    reference_refinement: int
+    figure: str
+    title: str
+
+    def dol_pattern(self) -> re.Pattern:
+        """``<prefix>_<method>_dol_[cond_<k>_]refinement_<r>.csv``."""
+        cond = "" if self.cond is None else f"cond_{self.cond}_"
+        return re.compile(rf"{self.prefix}_(?P<method>.+)_dol_{cond}refinement_(?P<r>\d+)\.csv")
+
+    def results_files(self, method: str) -> list[str]:
+        """Candidate ``*_results*.csv`` names, the case's own first.
+
+        Case 2 falls back to the ``cond_0`` file: both variants use the same meshes.
+        """
+        if self.cond is None:
+            return [f"{self.prefix}_{method}_results.csv"]
+        return [f"{self.prefix}_{method}_results_cond_{k}.csv" for k in (self.cond, 0)]
+
+
+CASES = {
+    "case1": Case("case1", "berre_case1", "single", None, 5, "berre_case1.png",
+                  "case 1, single fracture"),
+    "case2_conductive": Case("case2_conductive", "berre_case2_conductive", "regular", 0, 4,
+                             "berre_case2.png", "case 2, conductive fractures"),
+    "case2_blocking": Case("case2_blocking", "berre_case2_blocking", "regular", 1, 4,
+                           "berre_case2.png", "case 2, blocking fractures"),
+}
+
+HEADER = ["case", "method", "refinement", "cells", "fracture_faces", "unknowns", "wall_s",
+          "range_l2"]
+
+
+def matrix_head(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Arc length and matrix head of a benchmark ``*_dol_*.csv`` (its first column pair)."""
+    table = read_number_table(path)
+    return table[:, 0], table[:, 1]
+
+
+def reference_curve(case: Case, folder: Path) -> tuple[np.ndarray, np.ndarray]:
+    """The reference solution along the line."""
+    cond = "" if case.cond is None else f"cond_{case.cond}_"
+    name = f"{case.prefix}_{REFERENCE_METHOD}_dol_{cond}refinement_{case.reference_refinement}.csv"
+    return matrix_head(folder / name)
+
+
+def published_sizes(case: Case, folder: Path, method: str, refinement: int) -> dict:
+    """Cells, fracture faces and unknowns of a published run (NaN where not in the folder)."""
+    for name in case.results_files(method):
+        if (folder / name).exists():
+            rows = read_number_table(folder / name)
+            if refinement < len(rows):
+                row = dict(zip(RESULT_COLUMNS, rows[refinement], strict=True))
+                return {"cells": int(row["cells_3d"]), "fracture_faces": int(row["cells_2d"]),
+                        "unknowns": int(row["unknowns"]), "file": name}
+    return {"cells": np.nan, "fracture_faces": np.nan, "unknowns": np.nan, "file": None}
+
+
+def published_rows(case: Case, folder: Path, curves: dict) -> tuple[list[list], list[str]]:
+    """One row per published curve of the case but the reference; notes on borrowed sizes."""
+    s_ref, h_ref = reference_curve(case, folder)
+    rows, notes = [], []
+    found = []
+    for path in sorted(folder.iterdir()):
+        m = case.dol_pattern().fullmatch(path.name)
+        if m is None:
+            continue
+        method, r = m["method"], int(m["r"])
+        if method == REFERENCE_METHOD and r == case.reference_refinement:
+            continue
+        found.append((method, r, path))
+    for method, r, path in sorted(found):
+        s, h = matrix_head(path)
+        sizes = published_sizes(case, folder, method, r)
+        if sizes["file"] is not None and case.cond is not None \
+                and f"cond_{case.cond}" not in sizes["file"]:
+            notes.append(f"{case.name}, {LABELS.get(method, method)}: sizes from "
+                         f"{sizes['file']} (same meshes)")
+        misfit = line_differences(s_ref, h_ref, s, h)["range"]
+        rows.append([case.name, LABELS.get(method, method), r, sizes["cells"],
+                     sizes["fracture_faces"], sizes["unknowns"], np.nan, misfit])
+        curves[(case.name, LABELS.get(method, method), r)] = (s, h)
+    return rows, notes
+
+
+def probe_misfit(probe_csv: Path, s_ref: np.ndarray, h_ref: np.ndarray
+                 ) -> tuple[float, np.ndarray, np.ndarray]:
+    """Range-normalized L² misfit of a poromech probe (``p_m``) and its curve."""
+    header, data = read_csv(probe_csv)
+    s, h = data[:, header.index("arc_length")], data[:, header.index("p_m")]
+    return line_differences(s_ref, h_ref, s, h)["range"], s, h
+
+
+def run_level(case: Case, level: int, folder: Path, work: Path, curves: dict) -> list:
+    """Run the case's scene at a refinement level and compare its probe with the reference."""
+    from poromech.run import run_scene
+    from poromech.scene.loading import load_scene
+
+    scene = load_scene(ROOT / "configs" / f"{case.scene}.yaml",
+                       [f"mesh.refinement={level}", "output.xdmf=false"])
+    out = work / f"{case.name}_m{level}"
+    summary = run_scene(scene, out, MPI.COMM_WORLD)
+    s_ref, h_ref = reference_curve(case, folder)
+    misfit, s, h = probe_misfit(out / f"probe_{scene.probes[0].name}.csv", s_ref, h_ref)
+    curves[(case.name, "poromech", level)] = (s, h)
+    mesh = summary["mesh"]
+    return [case.name, "poromech", level, mesh["cells"], mesh["fracture_faces"],
+            summary["flow"]["unknowns"]["total"], summary["wall_time"]["total"], misfit]
+
+
+def plot(cases: list[Case], folder: Path, curves: dict) -> list[str]:
+    """One figure per benchmark case: head along the line (top), difference to the reference."""
+    written = []
+    for figure in dict.fromkeys(c.figure for c in cases):
+        panels = [c for c in cases if c.figure == figure]
+        fig, axes = plt.subplots(2, len(panels), figsize=(6.5 * len(panels), 6.5),
+                                 squeeze=False, sharex="col",
+                                 gridspec_kw={"height_ratios": [2, 1]})
+        for col, case in enumerate(panels):
+            top, bottom = axes[0, col], axes[1, col]
+            s_ref, h_ref = reference_curve(case, folder)
+            top.plot(s_ref, h_ref, "k-", lw=2.5,
+                     label=f"reference ({LABELS[REFERENCE_METHOD]}, "
+                           f"refinement {case.reference_refinement})")
+            keys = [k for k in curves if k[0] == case.name]
+            for key in sorted(keys, key=lambda k: (k[1] == "poromech", k[1], k[2])):
+                _, method, r = key
+                s, h = curves[key]
+                style = "-" if method == "poromech" else "--"
+                label = (f"poromech HFV, level {r}" if method == "poromech"
+                         else f"{method}, refinement {r}")
+                ok = np.isfinite(h)
+                top.plot(s[ok], h[ok], style, lw=1.0, label=label)
+                bottom.plot(s_ref, np.interp(s_ref, s[ok], h[ok]) - h_ref, style, lw=1.0,
+                            label=label)
+            top.set_ylabel("matrix head h (m)" if case.cond is None else "matrix pressure p")
+            top.set_title(case.title)
+            bottom.set_xlabel("arc length along the line")
+            bottom.set_ylabel("difference to the reference")
+            for ax in (top, bottom):
+                ax.grid(alpha=0.3)
+                ax.legend(fontsize=7)
+        save_figure(fig, DOCS / figure)
+        plt.close(fig)
+        written.append(figure)
+    return written
+
+
+def command_line(argv: list[str]) -> str:
+    """The command as typed, for the provenance line (the data folder when not the default)."""
+    return " ".join(["python scripts/flow_berre.py", *map(shlex.quote, argv)])
+
+
+def main(argv: list[str] | None = None) -> None:
+    argv = sys.argv[1:] if argv is None else argv
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--reference", default=os.environ.get("POROMECH_FLOW3D_REFERENCE",
+                                                         str(DEFAULT_REFERENCE)),
+                   help="folder of the benchmark's data (default ../shared/data/"
+                        "fracture_flow_3d beside the repository)")
+    p.add_argument("--levels", type=int, nargs="*", default=[0, 1, 2, 3],
+                   help="refinement levels of the poromech runs (none: published curves only)")
+    p.add_argument("--cases", nargs="+", choices=sorted(CASES), default=list(CASES))
+    args = p.parse_args(argv)
+    folder = Path(args.reference)
+    if not folder.is_dir():
+        p.error(f"no benchmark data in {folder} (give --reference)")
+    cases = [CASES[c] for c in args.cases]
+    DOCS.mkdir(parents=True, exist_ok=True)
+    rows, notes, curves = [], [], {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for case in cases:
+            published, case_notes = published_rows(case, folder, curves)
+            rows += published
+            notes += case_notes
+            for level in args.levels:
+                rows.append(run_level(case, level, folder, Path(tmp), curves))
+                print(rows[-1], flush=True)
+    command = command_line(argv)
+    ranks = MPI.COMM_WORLD.size
+    write_csv(DOCS / "berre.csv", HEADER, rows, comment=generated(command, ranks))
+    figures = plot(cases, folder, curves)
+    text = (generated(command, ranks) + ". range_l2 = ‖h - h_ref‖/(|line|^½ (max h_ref - "
+            "min h_ref)) in L² along the benchmark's line (the matrix head; the normalization of "
+            "the 2D study, docs/flow/flemisch.md), h_ref the reference "
+            f"{LABELS[REFERENCE_METHOD]} at its finest mesh; poromech levels: the scene's mesh "
+            "refined uniformly (8 times the cells per level), wall_s the whole run (meshing "
+            "included); published methods: cells, fracture faces and unknowns from their "
+            "results files.\n\n")
+    if notes:
+        text += "".join(f"* {n}\n" for n in notes) + "\n"
+    text += markdown_table(HEADER, rows)
+    text += "\n" + "".join(f"![{f}]({f})\n" for f in figures)
+    (DOCS / "berre.md").write_text(text)
+
+
+if __name__ == "__main__":
+    main()
