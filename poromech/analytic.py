@@ -20,6 +20,16 @@ Two 3D solutions for a penny-shaped crack of radius ``a`` in an infinite solid (
   opening. A uniform friction traction ``b`` (Tresca ``s``, or Coulomb ``F σ`` under the
   uniform compression ``σ``) acts against the slip: the slip is that of ``τ - b`` (0 when
   ``τ <= b``, the crack sticks).
+
+Two consolidation problems of poroelasticity (Biot), with the Biot coefficient ``b``, the Biot
+modulus ``M`` and the mobility ``k/η``:
+
+* Terzaghi: a laterally confined column under a constant load on its drained top.
+* Mandel (1953): a slab ``|x| < a`` squeezed between rigid, frictionless, impervious plates by
+  a constant force, drained on its sides ``x = ±a``, in plane strain. The pressure first rises
+  above its undrained value at the centre (the Mandel–Cryer effect), then decays (Cheng and
+  Detournay 1988; Abousleiman, Cheng, Cui, Detournay and Roegiers 1996, the isotropic case;
+  Wang 2000).
 """
 
 from __future__ import annotations
@@ -34,6 +44,11 @@ __all__ = [
     "inclined_crack_frame",
     "inclined_crack_slip",
     "inclined_crack_slip_field",
+    "mandel_displacement_x",
+    "mandel_displacement_z",
+    "mandel_parameters",
+    "mandel_pressure",
+    "mandel_roots",
     "sneddon_displacement",
     "sneddon_opening",
     "terzaghi_parameters",
@@ -228,3 +243,108 @@ def terzaghi_settlement(t: float, height: float, p_u: float, c_v: float, K_v: fl
     m = (2 * np.arange(terms) + 1) * np.pi / 2
     mean = (2 * p_u / m**2 * _terzaghi_decay(m, t, height, c_v, steps)).sum()
     return (biot * mean * height - load * height) / K_v
+
+
+def mandel_parameters(E: float, nu: float, biot: float, biot_modulus: float, mobility: float,
+                      half_width: float, force: float) -> dict[str, float]:
+    """Constants of Mandel's problem (Cheng and Detournay 1988; Abousleiman et al. 1996).
+
+    The slab ``|x| < a`` carries the compressive force ``2F`` per unit length (``force`` is
+    ``F``, N/m: the mean vertical stress is ``-F/a``). From the drained bulk modulus
+    ``K = λ + 2μ/3``: the undrained one ``K_u = K + b² M``, Skempton's coefficient
+    ``B = b M / K_u``, the undrained Poisson ratio ``ν_u = (3 K_u - 2μ) / (2 (3 K_u + μ))``,
+    the consolidation coefficient ``c = 2 (k/η) B² μ (1 - ν) (1 + ν_u)² / (9 (1 - ν_u)
+    (ν_u - ν))`` and the undrained pressure ``p₀ = F B (1 + ν_u) / (3a)``.
+
+    Returns:
+        ``{"mu", "nu_u", "B", "c", "p0", "a", "F", "nu"}`` (Pa, -, -, m²/s, Pa, m, N/m, -).
+    """
+    mu = E / (2 * (1 + nu))
+    K = E / (3 * (1 - 2 * nu))
+    Ku = K + biot**2 * biot_modulus
+    B = biot * biot_modulus / Ku
+    nu_u = (3 * Ku - 2 * mu) / (2 * (3 * Ku + mu))
+    c = 2 * mobility * B**2 * mu * (1 - nu) * (1 + nu_u) ** 2 / (9 * (1 - nu_u) * (nu_u - nu))
+    p0 = force * B * (1 + nu_u) / (3 * half_width)
+    return {"mu": mu, "nu_u": nu_u, "B": B, "c": c, "p0": p0, "a": half_width, "F": force,
+            "nu": nu}
+
+
+def mandel_roots(nu: float, nu_u: float, terms: int = 200) -> npt.NDArray[np.float64]:
+    """The first ``terms`` positive roots of ``tan α = (1 - ν)/(ν_u - ν) α``.
+
+    The n-th root lies in ``((n-1)π, (n-1)π + π/2)``, where ``sin α - C α cos α`` changes sign
+    once; found there by bisection to round-off.
+    """
+    C = (1 - nu) / (nu_u - nu)
+    lo = np.arange(terms) * np.pi + 1e-12
+    hi = np.arange(terms) * np.pi + np.pi / 2
+    f_lo = np.sin(lo) - C * lo * np.cos(lo)
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        f_mid = np.sin(mid) - C * mid * np.cos(mid)
+        below = np.sign(f_mid) == np.sign(f_lo)
+        lo, f_lo = np.where(below, mid, lo), np.where(below, f_mid, f_lo)
+        hi = np.where(below, hi, mid)
+    return 0.5 * (lo + hi)
+
+
+def _mandel_modes(t: float, c: dict[str, float], terms: int, steps: int | None):
+    """Roots ``α_n``, their decays and ``1/(α_n - sin α_n cos α_n)``."""
+    alpha = mandel_roots(c["nu"], c["nu_u"], terms)
+    rate = alpha**2 * c["c"] / c["a"] ** 2
+    decay = np.exp(-rate * t) if steps is None else (1.0 + rate * t / steps) ** (-steps)
+    return alpha, decay, 1.0 / (alpha - np.sin(alpha) * np.cos(alpha))
+
+
+def mandel_pressure(x, t: float, c: dict[str, float], terms: int = 200,
+                    steps: int | None = None):
+    """Pore pressure (Pa) of Mandel's problem at abscissa ``x`` and time ``t`` (s).
+
+    ``p = 2 p₀ Σ_n sin α_n / (α_n - sin α_n cos α_n) (cos(α_n x/a) - cos α_n)
+    exp(-α_n² c t / a²)`` (Abousleiman et al. 1996, isotropic case), ``c`` from
+    :func:`mandel_parameters`; ``p₀`` uniform at ``t <= 0`` (the undrained response). With
+    ``steps``, each mode decays as after that many implicit Euler steps (see
+    :func:`terzaghi_pressure`).
+    """
+    x = np.asarray(x, dtype=np.float64)
+    if t <= 0:
+        return np.full_like(x, c["p0"])
+    alpha, decay, w = _mandel_modes(t, c, terms, steps)
+    modes = np.cos(np.multiply.outer(x, alpha) / c["a"]) - np.cos(alpha)
+    return 2 * c["p0"] * (modes * (np.sin(alpha) * w * decay)).sum(axis=-1)
+
+
+def mandel_displacement_x(x, t: float, c: dict[str, float], terms: int = 200,
+                          steps: int | None = None):
+    """Horizontal displacement (m) of Mandel's problem at abscissa ``x`` and time ``t`` (s).
+
+    ``u_x = [F ν/(2μa) - F ν_u/(μa) Σ_n sin α_n cos α_n/(α_n - sin α_n cos α_n) e_n] x
+    + F/μ Σ_n cos α_n/(α_n - sin α_n cos α_n) sin(α_n x/a) e_n``, ``e_n = exp(-α_n² c t/a²)``;
+    at ``t <= 0`` the undrained ``F ν_u x / (2μa)``.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    F, mu, a = c["F"], c["mu"], c["a"]
+    if t <= 0:
+        return F * c["nu_u"] * x / (2 * mu * a)
+    alpha, decay, w = _mandel_modes(t, c, terms, steps)
+    sc = (np.sin(alpha) * np.cos(alpha) * w * decay).sum()
+    modes = np.sin(np.multiply.outer(x, alpha) / a) @ (np.cos(alpha) * w * decay)
+    return (F * c["nu"] / (2 * mu * a) - F * c["nu_u"] / (mu * a) * sc) * x + F / mu * modes
+
+
+def mandel_displacement_z(z, t: float, c: dict[str, float], terms: int = 200,
+                          steps: int | None = None):
+    """Vertical displacement (m) of Mandel's problem at height ``z`` above the mid-plane.
+
+    ``u_z = [-F (1 - ν)/(2μa) + F (1 - ν_u)/(μa) Σ_n sin α_n cos α_n/(α_n - sin α_n cos α_n)
+    exp(-α_n² c t/a²)] z``: the plates stay flat; at ``t <= 0`` the undrained
+    ``-F (1 - ν_u) z / (2μa)``.
+    """
+    z = np.asarray(z, dtype=np.float64)
+    F, mu, a = c["F"], c["mu"], c["a"]
+    if t <= 0:
+        return -F * (1 - c["nu_u"]) * z / (2 * mu * a)
+    alpha, decay, w = _mandel_modes(t, c, terms, steps)
+    sc = (np.sin(alpha) * np.cos(alpha) * w * decay).sum()
+    return (-F * (1 - c["nu"]) / (2 * mu * a) + F * (1 - c["nu_u"]) / (mu * a) * sc) * z

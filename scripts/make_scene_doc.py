@@ -152,7 +152,7 @@ def header() -> list[str]:
         "**Expressions** (`expr`): a number or a string in `x`, `y`, `z` (m; `z` is 0 in 2D), "
         "`t` (s), the scene "
         "`parameters` and `pi`, `e`, with `+ - * / ** %`, comparisons, `and`/`or`, and the "
-        f"functions {functions} (the last four are the exact fields of `poromech.analytic`), at "
+        f"functions {functions} (the last six are the exact fields of `poromech.analytic`), at "
         f"most {expressions.MAX_LENGTH} characters and {expressions.MAX_DEPTH} levels of "
         "nesting. Numbers written `4e9` (which YAML reads as text) are accepted. Every "
         "expression must be finite, and within the `allowed` range of its key, wherever it is "

@@ -15,21 +15,15 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from poromech import stepping
-from poromech.analytic import terzaghi_parameters, terzaghi_pressure, terzaghi_settlement
 from poromech.errors import SolverError
 from poromech.io.xdmf import read_series
 from poromech.run import Run, run_scene
 from poromech.scene.loading import load_scene
+from poromech.verification.consolidation import fluid_volume, terzaghi_errors
 
 comm = MPI.COMM_WORLD
 TERZAGHI = ROOT / "configs" / "terzaghi.yaml"
 INJECTION = ROOT / "configs" / "injection.yaml"
-
-
-def cell_areas(points, cells):
-    x = points[cells]
-    e1, e2 = x[:, 1] - x[:, 0], x[:, 2] - x[:, 0]
-    return 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
 
 
 def terzaghi_run(tmp_path, *overrides):
@@ -37,27 +31,6 @@ def terzaghi_run(tmp_path, *overrides):
     out = tmp_path / "_".join(o.replace("=", "") for o in overrides)
     summary = run_scene(scene, out)
     return scene, out, summary
-
-
-def terzaghi_errors(scene, out, steps=None):
-    """Relative L² error of p and relative error of the settlement at the final time, against
-    the exact solution or (``steps``) the exact solution of the time-discrete problem."""
-    p = scene.parameters
-    c = terzaghi_parameters(p["E"], p["nu"], p["b"], p["M"], 1e-14, 1e-3, p["sigma0"])
-    flow = read_series(out, "flow")
-    x = flow.points[flow.cells].mean(axis=1)
-    area = cell_areas(flow.points, flow.cells)
-    t = flow.times[-1]
-    ph = flow.fields(-1)["p_m"]
-    pe = terzaghi_pressure(p["L"] - x[:, 1], t, p["L"], c["p_u"], c["c_v"], steps=steps)
-    err_p = np.sqrt(np.sum(area * (ph - pe) ** 2) / np.sum(area * pe**2))
-    u = read_series(out, "displacement")
-    top = np.isclose(u.points[:, 1], p["L"])
-    uy = u.fields(-1)["u"][top, 1].mean()
-    args = (p["L"], c["p_u"], c["c_v"], c["K_v"], p["b"], p["sigma0"])
-    settled = terzaghi_settlement(t, *args) - terzaghi_settlement(1e-12, *args)
-    err_u = abs(uy - terzaghi_settlement(t, *args, steps=steps)) / abs(settled)
-    return err_p, err_u, ph
 
 
 def assert_same_fixed_point(run_a, run_b, rtol=1e-4):
@@ -100,16 +73,6 @@ def test_terzaghi_space_order(tmp_path):
     rates = np.log2(errors[:-1] / errors[1:])
     assert np.all(rates > 1.9) and np.all(rates < 2.2), (errors, rates)
     assert errors[-1, 0] < 5e-5, errors
-
-
-def fluid_volume(out, t_index):
-    """Σ |K| φ_K + Σ |σ| d_σ of an output step (m² per unit depth)."""
-    flow = read_series(out, "flow")
-    frac = read_series(out, "fractures")
-    area = cell_areas(flow.points, flow.cells)
-    length = np.linalg.norm(np.diff(frac.points[frac.cells], axis=1)[:, 0], axis=1)
-    return (area @ flow.fields(t_index)["porosity"]
-            + length @ frac.fields(t_index)["aperture"])
 
 
 @pytest.mark.slow

@@ -83,6 +83,38 @@ def test_factorization_reused_across_steps_of_a_linear_problem():
     assert all(r["iterations"] == 1 for r in records)
 
 
+@pytest.mark.parametrize("name", ["terzaghi", "terzaghi3d"])
+def test_a_jacobian_without_contact_is_assembled_once(name):
+    """A column without fractures and with constant moduli (the coupled Terzaghi scenes): the
+    Jacobian is assembled at the first Newton iteration of the run only. Assembling it at every
+    iteration, as before, gives the same displacement and pressures bitwise."""
+    assemblies, fields = {}, {}
+    for constant in (True, False):
+        calls = []
+
+        def prepare(physics, constant=constant, calls=calls):
+            solver = physics.mech.solver
+            assert solver.constant_jacobian
+            solver.constant_jacobian = constant
+            assembled = solver.linear.assembled
+
+            def counted(states):
+                calls.append(states)
+                assembled(states)
+
+            solver.linear.assembled = counted
+
+        with run_of(name, "time.steps=3", prepare=prepare) as run:
+            summary = run.execute()
+            fields[constant] = [f.x.array.copy() for f in (run.physics.model.u,
+                                                           run.physics.model.p_m)]
+        assemblies[constant] = len(calls)
+    assert assemblies[True] == 1
+    assert assemblies[False] == summary["coupling"]["newton_iterations"] + 1  # + the initial one
+    for a, b in zip(fields[True], fields[False], strict=True):
+        assert np.array_equal(a, b)
+
+
 def test_reuse_can_be_switched_off():
     records = records_of("sneddon", "fracture_pressure=1e7*t", "time={final: 1.0, steps: 3}",
                          "solver.reuse_jacobian=false", prepare=no_predictor)

@@ -36,8 +36,9 @@ with GMRES preconditioned by a stale factorization after few contact-state chang
 (``stale_factorization``, options prefix ``mech_stale_``); a Krylov method when the options ask
 for one. When the contact law says that its Jacobian is a function of the contact states only
 (2D friction: piecewise affine), an unchanged active set skips the assembly of the Jacobian
-altogether (``states_determine_jacobian``). A residual evaluated during the line search is not
-assembled again for the accepted iterate.
+altogether (``states_determine_jacobian``), and a problem without contact terms whose
+coefficients are constant in time assembles its Jacobian once (``constant_jacobian``). A
+residual evaluated during the line search is not assembled again for the accepted iterate.
 """
 
 from __future__ import annotations
@@ -153,6 +154,9 @@ class SemiSmoothNewton:
             contact law's :attr:`~poromech.forms.contact.ContactParameters.piecewise_affine`,
             with coefficients constant in time): an unchanged active set then reuses the
             assembled Jacobian.
+        constant_jacobian: The Jacobian never changes (a linear problem whose coefficients are
+            constant in time: no contact conditions): with ``reuse_jacobian`` it is assembled
+            once, at the first Newton iteration of the first solve.
         modes: Computes the rigid-body modes of a displacement-only system
             (:func:`~poromech.mechanics.linear.rigid_body_modes`); called when the options
             configure a Krylov solve, whose matrix then carries them as near-nullspace.
@@ -187,6 +191,7 @@ class SemiSmoothNewton:
         stale_factorization: bool = True,
         states: Callable[[], np.ndarray] | None = None,
         states_determine_jacobian: bool = False,
+        constant_jacobian: bool = False,
         modes: Callable[[], np.ndarray] | None = None,
         eliminate_faces: bool = False,
         inexact: bool = False,
@@ -205,6 +210,8 @@ class SemiSmoothNewton:
         self.reuse_jacobian = reuse_jacobian
         self.states = states
         self.states_determine_jacobian = states_determine_jacobian
+        self.constant_jacobian = constant_jacobian
+        self._jacobian_assembled = False  # the matrix holds an assembled Jacobian
         self.reference_norm = 0.0
         self._min_iterations = 0
         self._last_states = None  # active set of the current iterate
@@ -299,10 +306,12 @@ class SemiSmoothNewton:
         codes of ``states``) means an unchanged matrix: this saves the assembly in the many
         solves of a coupled run that start in the last active set. Without
         :attr:`reuse_jacobian` the matrix is always assembled, so that the direct solver
-        refactorizes it (PETSc keeps the factors of a matrix that was not modified).
+        refactorizes it (PETSc keeps the factors of a matrix that was not modified). A
+        :attr:`constant_jacobian` is assembled once.
         """
-        if (self.reuse_jacobian and self.states_determine_jacobian
-                and self._same_states(self._jacobian_states)):
+        if self.reuse_jacobian and ((self.constant_jacobian and self._jacobian_assembled)
+                                    or (self.states_determine_jacobian
+                                        and self._same_states(self._jacobian_states))):
             self.record.jacobian_reuses += 1
             return
         t0 = time.perf_counter()
@@ -313,6 +322,7 @@ class SemiSmoothNewton:
         A.assemble()
         self._jacobian_states = None if self._last_states is None else self._last_states.copy()
         self.linear.assembled(self._jacobian_states)
+        self._jacobian_assembled = True
         self.record.time_assembly += time.perf_counter() - t0
 
     def _same_states(self, reference) -> bool:

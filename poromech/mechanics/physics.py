@@ -178,6 +178,7 @@ class MechanicsPhysics:
                 stale_factorization=scene.solver.stale_factorization and not singular,
                 states=model.active_set if model.faces is not None else None,
                 states_determine_jacobian=constant and model.params.piecewise_affine,
+                constant_jacobian=constant and model.linear,
                 modes=(lambda: rigid_body_modes(model.V)) if (len(model.unknowns) == 1
                                                                or eliminate) else None,
                 eliminate_faces=eliminate,

@@ -25,7 +25,11 @@ VARIABLES = ("x", "y", "z", "t")
 COORDINATES = ("x", "y", "z")
 
 def _analytic_functions() -> dict[str, Callable]:
-    """Exact plane-strain displacement fields (``poromech.analytic``) usable in expressions."""
+    """Exact fields of ``poromech.analytic`` usable in expressions.
+
+    The plane-strain displacements around Sneddon's and the inclined crack, and Mandel's pressure
+    and vertical displacement (``k`` is the mobility k/η, m²/(Pa s); ``t`` a time).
+    """
     from poromech import analytic
 
     def sneddon(k):
@@ -35,11 +39,25 @@ def _analytic_functions() -> dict[str, Callable]:
         return lambda x, y, b, psi, s, F, E, nu: analytic.inclined_crack_displacement(
             x, y, b, psi, s, F, E, nu)[k]
 
+    def mandel(field):
+        def evaluate(s, t, a, F, E, nu, biot, M, k):
+            c = analytic.mandel_parameters(E, nu, biot, M, k, a, F)
+            s, t = np.broadcast_arrays(np.asarray(s, dtype=np.float64),
+                                       np.asarray(t, dtype=np.float64))
+            out = np.empty(s.shape)
+            for time in np.unique(t):  # one time in a scene's expressions
+                at = t == time
+                out[at] = field(s[at], float(time), c)
+            return out
+        return evaluate
+
     return {
         "sneddon_ux": sneddon(0),
         "sneddon_uy": sneddon(1),
         "inclined_crack_ux": inclined(0),
         "inclined_crack_uy": inclined(1),
+        "mandel_p": mandel(analytic.mandel_pressure),
+        "mandel_uz": mandel(analytic.mandel_displacement_z),
     }
 
 
@@ -73,13 +91,15 @@ _CONSTANTS = {"pi": math.pi, "e": math.e}
 #: Arguments each function takes (the NumPy ufuncs' and the analytic fields' signatures).
 _ARITY = {name: 1 for name in _FUNCTIONS}
 _ARITY.update(arctan2=2, min=2, max=2, hypot=2, where=3, clip=3, sneddon_ux=6, sneddon_uy=6,
-              inclined_crack_ux=8, inclined_crack_uy=8)
+              inclined_crack_ux=8, inclined_crack_uy=8, mandel_p=9, mandel_uz=9)
 _SIGNATURES = {
     "arctan2": "arctan2(y, x)", "min": "min(a, b)", "max": "max(a, b)", "hypot": "hypot(a, b)",
     "where": "where(condition, a, b)", "clip": "clip(a, lo, hi)",
     "sneddon_ux": "sneddon_ux(x, y, a, p, E, nu)", "sneddon_uy": "sneddon_uy(x, y, a, p, E, nu)",
     "inclined_crack_ux": "inclined_crack_ux(x, y, b, psi, sigma, F, E, nu)",
     "inclined_crack_uy": "inclined_crack_uy(x, y, b, psi, sigma, F, E, nu)",
+    "mandel_p": "mandel_p(x, t, a, F, E, nu, b, M, k)",
+    "mandel_uz": "mandel_uz(z, t, a, F, E, nu, b, M, k)",
 }
 
 

@@ -1,1 +1,5 @@
-"""Known answers for tests and benchmarks: jump errors, manufactured and 1D flow solutions."""
+"""Known answers for tests and benchmarks.
+
+Jump errors, manufactured and 1D flow solutions, consolidation errors and fluid volumes of
+coupled runs.
+"""

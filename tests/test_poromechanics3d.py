@@ -1,0 +1,201 @@
+"""3D poromechanics: Terzaghi's column (orders in time and space), Mandel's slab (pressure
+against the series, the Mandel–Cryer effect), an injected disc fracture that opens and closes
+(mass conservation, contact states), restart after an interruption and 1 rank vs 2 ranks."""
+
+import json
+import signal
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from conftest import ROOT, mpirun
+from test_coupling import assert_same_fixed_point
+
+from poromech import stepping
+from poromech.analytic import (
+    mandel_displacement_x,
+    mandel_displacement_z,
+    mandel_parameters,
+    mandel_pressure,
+    mandel_roots,
+)
+from poromech.io.xdmf import read_series
+from poromech.run import Run, run_scene
+from poromech.scene.expressions import compile_expression
+from poromech.scene.loading import load_scene
+from poromech.verification.consolidation import fluid_volume, mandel_errors, terzaghi_errors
+
+TERZAGHI3D = ROOT / "configs" / "terzaghi3d.yaml"
+MANDEL3D = ROOT / "configs" / "mandel3d.yaml"
+INJECTION3D = ROOT / "configs" / "injection3d.yaml"
+
+
+def run(tmp_path, path, *overrides):
+    scene = load_scene(path, overrides)
+    out = tmp_path / ("_".join(o.replace("=", "") for o in overrides) or "default")
+    summary = run_scene(scene, out)
+    assert summary["status"] == "converged"
+    return scene, out, summary
+
+
+def orders(errors) -> np.ndarray:
+    errors = np.array(errors)
+    return np.log2(errors[:-1] / errors[1:])
+
+
+@pytest.mark.slow
+def test_terzaghi3d_time_order(tmp_path):
+    """Implicit Euler in the 3D column (444 tetrahedra): errors halve with the time step."""
+    errors = [terzaghi_errors(*run(tmp_path, TERZAGHI3D, f"time.steps={n}")[:2])[:2]
+              for n in (5, 10, 20)]
+    rates = orders(errors)
+    assert np.all(rates > 0.9) and np.all(rates < 1.1), rates
+    assert errors[-1][0] < 0.01 and errors[-1][1] < 0.01, errors
+
+
+@pytest.mark.slow
+def test_terzaghi3d_space_order(tmp_path):
+    """Against the exact solution of the time-discrete problem (4 implicit Euler steps), under
+    uniform refinement of a mesh of size 0.125 (159, 1,272, 10,176 tetrahedra): the settlement
+    converges at order 2, the pressure at 1.76 then 1.94 (the coarsest mesh has one cell across
+    the column and is not yet in the asymptotic range)."""
+    errors = []
+    for m in (0, 1, 2):
+        scene, out, _ = run(tmp_path, TERZAGHI3D, "time.steps=4", "mesh.size=0.125",
+                            f"mesh.refinement={m}")
+        errors.append(terzaghi_errors(scene, out, steps=4)[:2])
+    rates = orders(errors)
+    assert np.all(rates[:, 1] > 1.9) and np.all(rates[:, 1] < 2.2), (errors, rates)
+    assert rates[0, 0] > 1.7 and 1.9 < rates[1, 0] < 2.2, (errors, rates)
+    assert errors[-1][0] < 6e-5 and errors[-1][1] < 6e-5, errors
+
+
+def test_mandel_series():
+    """The series of Mandel's problem: its roots, the undrained start, the drained end, the
+    drained side and the two displacements at t → 0 and t → ∞."""
+    c = mandel_parameters(1e9, 0.2, 1.0, 1e10, 1e-11, 1.0, 1e6)
+    assert c["c"] == pytest.approx(1e-2, rel=1e-12)  # (k/η) M K_v / (K_v + b² M)
+    alpha = mandel_roots(c["nu"], c["nu_u"], 200)
+    C = (1 - c["nu"]) / (c["nu_u"] - c["nu"])
+    assert np.allclose(np.sin(alpha), C * alpha * np.cos(alpha), rtol=0, atol=1e-12 * alpha)
+    assert np.all(np.diff(alpha) > 3.0)
+    x = np.linspace(0.0, 0.8, 9)
+    assert mandel_pressure(x, 1e-3, c) == pytest.approx(c["p0"], rel=2e-3)
+    assert mandel_pressure(1.0, 5.0, c) == pytest.approx(0.0, abs=1e-9 * c["p0"])
+    assert mandel_pressure(0.0, 5.0, c) > 1.09 * c["p0"]  # Mandel–Cryer
+    assert np.all(mandel_pressure(x, 1e4, c) < 1e-12 * c["p0"])
+    mu, F = c["mu"], c["F"]
+    assert mandel_displacement_z(1.0, 1e-3, c) == pytest.approx(
+        -F * (1 - c["nu_u"]) / (2 * mu), rel=2e-3)
+    assert mandel_displacement_x(1.0, 1e-3, c) == pytest.approx(F * c["nu_u"] / (2 * mu),
+                                                                rel=2e-3)
+    assert mandel_displacement_z(1.0, 1e4, c) == pytest.approx(-F * (1 - c["nu"]) / (2 * mu))
+    assert mandel_displacement_x(1.0, 1e4, c) == pytest.approx(F * c["nu"] / (2 * mu))
+    # the scene functions are these series
+    p = {"a": 1.0, "F": 1e6, "E": 1e9, "nu": 0.2, "b": 1.0, "M": 1e10, "k": 1e-11}
+    args = "a, F, E, nu, b, M, k"
+    points = np.column_stack([x, np.zeros_like(x), np.full_like(x, 0.25)])
+    uz = compile_expression(f"mandel_uz(z, t, {args})", p)
+    assert uz(points, 3.0) == pytest.approx(mandel_displacement_z(0.25, 3.0, c))
+    p0 = compile_expression(f"mandel_p(x, 0, {args})", p)
+    assert np.all(p0(points) == c["p0"])
+
+
+@pytest.mark.slow
+def test_mandel3d_pressure_and_mandel_cryer_effect(tmp_path):
+    """Mandel's slab (294 tetrahedra, 50 steps of 1 s): the pressure at c t/a² = 0.1 and 0.5
+    within 2 % (L² over the cells) of the series, the horizontal displacement of the drained
+    side within 1 %, and at the centre the pressure rises above its undrained value p₀ (peak
+    1.089 p₀ at t = 7 s; the series at the same cells 1.097) before it decays."""
+    scene, out, summary = run(tmp_path, MANDEL3D)
+    times = read_series(out, "flow").times
+    for t, tol in ((10.0, 0.015), (50.0, 0.012)):
+        e = mandel_errors(scene, out, times.index(t))
+        assert e["pressure"] < tol and e["ux"] < 0.01, e
+    centre = [mandel_errors(scene, out, k) for k in range(len(times))]
+    peak = max(range(len(times)), key=lambda k: centre[k]["centre"])
+    assert 3.0 <= times[peak] <= 8.0, times[peak]
+    assert centre[peak]["centre"] > 1.08, centre[peak]
+    assert abs(centre[peak]["centre"] - centre[peak]["centre_exact"]) < 0.01, centre[peak]
+    assert centre[-1]["centre"] < 0.6
+
+
+@pytest.mark.slow
+def test_injection3d_opens_closes_and_conserves_mass(tmp_path):
+    """The disc fracture (106 faces, mean_nitsche P2) is closed under the confining stress, opens
+    completely under injection, closes after shut-in; every step conserves the fluid."""
+    scene, out, summary = run(tmp_path, INJECTION3D)
+    frac = read_series(out, "fractures")
+    states = [frac.fields(k)["state"] for k in range(len(frac.times))]
+    d0 = frac.fields(0)["aperture"]
+    assert np.all(states[0] > 0)  # closed at t = 0 under the confining stress
+    opened = [k for k, s in enumerate(states) if np.all(s == 0)]
+    assert opened and frac.fields(opened[0])["aperture"].max() > 10 * d0.max()
+    assert np.all(states[-1] > 0) and opened[-1] < len(states) - 1  # closed again
+    dt = scene.time.final / scene.time.steps
+    for k, rec in enumerate(summary["solves"], start=1):
+        mb = rec["mass_balance"]
+        assert mb["relative_residual"] < 1e-8
+        change = fluid_volume(out, k) - fluid_volume(out, k - 1)
+        assert change == pytest.approx(dt * (mb["sources"] - mb["outflow"]), rel=1e-7,
+                                       abs=1e-12 * dt * abs(mb["sources"]) + 1e-18)
+
+
+def test_restart_reproduces_the_uninterrupted_run_3d(tmp_path):
+    """The injected disc, four steps (it opens in the second): a run stopped by SIGTERM after
+    its second step and continued with ``restart`` gives the uninterrupted run's contact
+    states, apertures, pressures, displacement and fixed-point work."""
+    scene = load_scene(INJECTION3D, ["time.final=80", "time.steps=4"])
+    full = run_scene(scene, tmp_path / "full")
+
+    def terminate_after_second_step(physics):
+        accept, accepted = physics.accept, []
+
+        def accept_and_signal(t):
+            accept(t)
+            accepted.append(t)
+            if len(accepted) == 2:
+                signal.raise_signal(signal.SIGTERM)
+
+        physics.accept = accept_and_signal
+
+    part = tmp_path / "part"
+    with Run(scene, part, prepare=terminate_after_second_step) as run_, \
+            pytest.raises(stepping.Interrupted):
+        run_.execute()
+    summary = json.loads((part / "summary.json").read_text())
+    assert summary["completed_steps"] == 2 and summary["status"].startswith("interrupted")
+    resumed = run_scene(scene, part, restart=True)
+    assert resumed["status"] == "converged" and len(resumed["solves"]) == 4
+    assert_same_fixed_point(tmp_path / "full", part, rtol=1e-6)
+    ua = read_series(tmp_path / "full", "displacement").fields(-1)["u"]
+    ub = read_series(part, "displacement").fields(-1)["u"]
+    assert np.abs(ua - ub).max() <= 1e-6 * np.abs(ua).max()
+    assert full["coupling"]["g_evaluations"] == resumed["coupling"]["g_evaluations"]
+    opened = read_series(part, "fractures").fields(2)["state"]
+    assert np.all(opened == 0)  # the restart continued from an open fracture
+
+
+@pytest.mark.mpi
+def test_one_rank_equals_two_ranks_3d(tmp_path):
+    """The injected disc, two steps (closed, then open) on 1 and 2 ranks: the same ``g``
+    evaluations and Newton iterations, and the same fields to solver tolerance."""
+    out = {}
+    for n in (1, 2):
+        out[n] = tmp_path / f"n{n}"
+        cmd = [mpirun(), "-n", str(n), sys.executable, "-m", "poromech", "run", str(INJECTION3D),
+               "-q", "--set", "time.final=40", "--set", "time.steps=2", "-o", str(out[n])]
+        proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=900)
+        assert proc.returncode == 0, proc.stderr[-3000:]
+    s1, s2 = (json.loads((out[n] / "summary.json").read_text()) for n in (1, 2))
+    assert s2["mpi_ranks"] == 2
+    for a, b in zip(s1["solves"], s2["solves"], strict=True):
+        assert a["g_evaluations"] == b["g_evaluations"]
+        assert abs(a["newton_iterations"] - b["newton_iterations"]) <= 2
+    f1, f2 = (read_series(out[n], "fractures").fields(-1) for n in (1, 2))
+    assert np.all(f1["state"] == 0) and np.array_equal(f1["state"], f2["state"])
+    for stem, name in (("flow", "p_m"), ("fractures", "jump_n"), ("fractures", "p_f"),
+                       ("fractures", "aperture"), ("displacement", "u")):
+        a, b = (read_series(out[n], stem).fields(-1)[name] for n in (1, 2))
+        assert np.abs(a - b).max() <= 1e-6 * np.abs(a).max(), (stem, name)
