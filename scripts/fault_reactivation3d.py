@@ -1,6 +1,6 @@
 """The 3D fault-reactivation scene: history, error against run time, and the cost ratios.
 
-    python scripts/fault_reactivation3d.py                       # all levels and formulations
+    python scripts/fault_reactivation3d.py            # three levels, nitsche and stabilized_mixed
     python scripts/fault_reactivation3d.py --levels coarse medium --formulations nitsche
     python scripts/fault_reactivation3d.py --report              # tables and figures only
 
@@ -17,8 +17,10 @@ interrupted study keeps its finished rows):
   solve is the mean cost of a contact Newton iteration (assembly and linear solve) and one
   Darcy solve the mean cost of a Darcy solve of the run;
 * the error of the mean-slip and pressure histories (relative L² over the output times)
-  against the reference run (``--reference``, by default the finest ``mean_nitsche`` P1 run;
-  ``mixed`` P2, the one formulation with exact stick, costs too much on the fine mesh here).
+  against the reference run (``--reference``, by default the finest ``stabilized_mixed`` P1
+  run; ``mixed`` P2, the one formulation with exact stick, costs too much on the fine mesh
+  here; ``mean_nitsche`` gives the jumps of ``stabilized_mixed`` to round-off, as on every
+  3D scene measured, and is left out by default).
 
 Writes docs/poromechanics/fault_reactivation3d.{csv,md,png} and
 docs/images/fault_reactivation3d.png (slip on the faults at shut-in).
@@ -253,9 +255,10 @@ def picture(outdir: Path, scene) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--levels", nargs="+", default=list(LEVELS), choices=list(LEVELS))
-    ap.add_argument("--formulations", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
+    ap.add_argument("--formulations", nargs="+", choices=list(VARIANTS),
+                    default=["nitsche-P1", "stabilized_mixed-P1"])
     ap.add_argument("--ranks", type=int, default=1)
-    ap.add_argument("--reference", default="mean_nitsche-P1@fine")
+    ap.add_argument("--reference", default="stabilized_mixed-P1@fine")
     ap.add_argument("--report", action="store_true", help="only the tables and figures")
     args = ap.parse_args()
     DOCS.mkdir(parents=True, exist_ok=True)

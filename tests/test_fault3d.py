@@ -48,7 +48,7 @@ def test_fault_slips_under_injection_and_sticks_after_shut_in(run):
     assert np.all(np.diff(slip[: shut_in + 1]) > 0)  # slip accumulates while injecting
     assert slipping[-1] == 0  # every face sticks after shut-in
     # a stuck face moves only by the Nitsche compliance ΔT_τ/γ (a few % here)
-    assert abs(slip[-1] - slip[shut_in]) < 0.15 * slip[shut_in] and slip[shut_in] > 2e-4
+    assert abs(slip[-1] - slip[shut_in]) < 0.15 * slip[shut_in] and slip[shut_in] > 2e-5
     for rec in summary["solves"]:
         assert rec["mass_balance"]["relative_residual"] < 1e-8
         assert rec["g_evaluations"] <= 10
@@ -65,4 +65,4 @@ def test_probe_reads_the_fault_along_its_dip(run):
     p_m = np.array([float(r["p_m"]) for r in rows])
     assert np.all(np.isfinite(p_f)) and np.all(np.isfinite(p_m))
     centre = np.argmin([abs(float(r["arc_length"]) - 150.0) for r in rows])
-    assert p_f[centre] > p_f[0] + 5e6  # overpressured at the injection point
+    assert p_f[centre] > p_f[0] + 3e6  # overpressured at the injection point
