@@ -229,3 +229,18 @@ def test_scene_errors(key, change, message):
         raw["flow"].update(change)
     err = config_error(raw)
     assert key in err and message in err, err
+
+
+def test_fracture_field_may_vanish_on_the_fracture_edge():
+    """Fracture fields are checked where face barycentres can lie, strictly inside the fracture
+    (as in 2D, where the segment ends are left out): an aperture law that vanishes on the rim
+    of a disc is accepted, one that is negative inside it is refused."""
+    from poromech.scene.loading import scene_from_dict
+
+    raw = json.loads(json.dumps(SCENE))
+    rim = "1e-4*sqrt(max(0.0225 - (x-0.25)**2 - (y-0.3)**2 - (z-0.5)**2, 0))/0.15"
+    raw["flow"]["fractures"] = [{"fracture": "c", "aperture": rim}]
+    assert scene_from_dict(raw).flow.fractures[0].aperture.source == rim
+    raw["flow"]["fractures"] = [{"fracture": "c", "aperture": "1e-4*(x - 0.25)"}]
+    err = config_error(raw)
+    assert "flow.fractures.0.aperture" in err and "must be > 0" in err, err

@@ -95,7 +95,8 @@ def fracture_points(geo: PlaneGeometry | BoxGeometry, which=None, n: int = LINE_
     """Points of fractures ``which`` (default all) where face midpoints can lie.
 
     2D: segment end points are excluded (no face has its midpoint there). 3D: a grid of each
-    fracture's plane inside the fracture, and points on its edge.
+    fracture's plane inside the fracture, and points just inside its edge (no triangle has its
+    barycentre on the edge).
     """
     if isinstance(geo, BoxGeometry):
         parts = [_surface_points(f) for k, f in enumerate(geo.fractures)
@@ -108,7 +109,12 @@ def fracture_points(geo: PlaneGeometry | BoxGeometry, which=None, n: int = LINE_
 
 
 def _surface_points(fracture) -> np.ndarray:
-    """Grid points of a planar fracture (inside it) and points on its edge, ``(m, 3)``."""
+    """Grid points of a planar fracture (inside it) and points just inside its edge, ``(m, 3)``.
+
+    The edge points are pulled towards the fracture's origin by half a grid spacing (relative),
+    as the 2D samples stop half a spacing short of the segment ends: a field that vanishes on
+    the edge (an aperture law of the distance to the tips) is positive on every face.
+    """
     t1, t2 = fracture.tangents
     uv = fracture.to_plane(fracture.outline())
     lo, hi = uv.min(axis=0), uv.max(axis=0)
@@ -116,7 +122,9 @@ def _surface_points(fracture) -> np.ndarray:
     u, v = np.meshgrid(lo[0] + s * (hi[0] - lo[0]), lo[1] + s * (hi[1] - lo[1]))
     pts = fracture.origin + u.reshape(-1, 1) * t1 + v.reshape(-1, 1) * t2
     pts = pts[fracture.contains(pts, 0.0)]
-    return np.concatenate([pts, fracture.boundary_points(4 * SURFACE_GRID)])
+    edge = fracture.boundary_points(4 * SURFACE_GRID)
+    edge = fracture.origin + (1.0 - 0.5 / SURFACE_GRID) * (edge - fracture.origin)
+    return np.concatenate([pts, edge[fracture.projects_inside(edge)]])
 
 
 def check_times(scene: Scene) -> list[float]:

@@ -16,8 +16,11 @@ from both prisms that share it, so the tetrahedra are conforming.
 A fracture polyline with corners becomes one fracture made of planar rectangles, one per
 segment (:class:`SlabGeometry` gives each face the frame of its segment); crossings, T-junctions
 and fractures that reach the boundary are extruded with the mesh. :func:`slab_scene` turns a 2D
-mechanics scene (its boundary conditions, contact, material, time steps) into the slab's 3D
-scene, to run with the mesh of :func:`slab_mesh`.
+scene (mechanics, flow or coupled: its boundary conditions, contact, material, flow, coupling,
+gravity, probes, time steps) into the slab's 3D scene, to run with the mesh of
+:func:`slab_mesh`. Flow in the 2D plane is per unit depth and the slab's front and back are
+impervious, so the per-volume and per-area quantities (sources, fluxes, apertures) are the 2D
+ones and the slab carries the 2D flow over its thickness.
 """
 
 from __future__ import annotations
@@ -38,17 +41,13 @@ from poromech.mesh.fractured import FracturedMesh, distribute_mesh
 from poromech.mesh.generate import MeshArrays, generate_mesh
 from poromech.scene.geometry import mesh_sizes, scene_geometry
 from poromech.scene.loading import scene_from_dict
-from poromech.scene.schema import Scene
+from poromech.scene.schema import Flow, FlowBoundaryCondition, FractureFlow, Scene
 
-__all__ = ["SLAB_FACES", "SUMMARY_FIELDS", "SlabGeometry", "fracture_summary", "slab_arrays",
-           "slab_geometry", "slab_mesh", "slab_scene"]
+__all__ = ["FLOW_FIELDS", "SLAB_FACES", "SUMMARY_FIELDS", "SlabGeometry", "fracture_summary",
+           "slab_arrays", "slab_geometry", "slab_mesh", "slab_scene"]
 
 #: The 3D face of each 2D rectangle edge (the 2D y axis is the 3D z axis).
 SLAB_FACES = {"bottom": "bottom", "right": "right", "top": "top", "left": "left"}
-
-#: Scene keys a slab cannot map to 3D (gravity and probes are given in 2D coordinates; 3D runs
-#: mechanics only).
-UNMAPPED_KEYS = ("gravity", "probes", "flow", "coupling")
 
 #: The name ``y`` in an expression (not part of a longer name or a number).
 _Y = re.compile(r"(?<![\w.])y(?!\w)")
@@ -169,19 +168,65 @@ def _vector(value, middle):
     return [vx, middle, vy]
 
 
-def _slab_raw(raw: Mapping, slab: SlabGeometry, fractures: list[list[list[float]]]) -> dict:
-    """The raw 3D scene of the slab (with the given fracture polygons)."""
-    raw = copy.deepcopy(dict(raw))
-    given = [k for k in UNMAPPED_KEYS if raw.get(k)]
-    if raw.get("physics", "mechanics") != "mechanics" or given:
-        raise ValueError("a slab maps a mechanics scene without "
-                         f"{', '.join(UNMAPPED_KEYS)} (given: physics "
-                         f"{raw.get('physics', 'mechanics')!r}, {', '.join(given) or 'none'})")
+def _expressions(cls) -> tuple[str, ...]:
+    """The keys of a scene section that hold one expression (``Expr`` or ``Expr | None``)."""
+    return tuple(f.name for f in dataclasses.fields(cls) if re.fullmatch(r"Expr( \| None)?",
+                                                                           str(f.type)))
+
+
+def _in_xz_keys(section: Mapping, keys: tuple[str, ...]) -> dict:
+    """A scene section with the expressions of ``keys`` in ``(x, z)``."""
+    return {k: _in_xz(v) if k in keys else v for k, v in section.items()}
+
+
+def _permeability(value) -> list:
+    """2D permeability components as 3D ones, with ``k_yy = k_xx`` across the slab.
+
+    ``[k]`` stays isotropic, ``[k_xx, k_yy]`` becomes ``[k_xx, k_xx, k_yy]`` and
+    ``[k_xx, k_xy, k_yy]`` the six components ``[k_xx, 0, k_xy, k_xx, 0, k_yy]``. No flow
+    crosses the slab (impervious front and back, no gradient in ``y``), so any positive
+    ``k_yy`` would do; ``k_xx`` keeps an isotropic tensor isotropic.
+    """
+    k = [_in_xz(c) for c in (value if isinstance(value, list | tuple) else [value])]
+    if len(k) == 2:
+        return [k[0], k[0], k[1]]
+    if len(k) == 3:
+        return [k[0], 0.0, k[1], k[0], 0.0, k[2]]
+    return k
+
+
+def _slab_flow(flow: Mapping) -> dict:
+    """The ``flow`` section of the slab: boundaries to box faces, expressions in ``(x, z)``."""
+    out = _in_xz_keys(flow, _expressions(Flow))
+    if "permeability" in flow:
+        out["permeability"] = _permeability(flow["permeability"])
+    out["fractures"] = [_in_xz_keys(f, _expressions(FractureFlow))
+                        for f in flow.get("fractures") or ()]
+    out["boundary_conditions"] = [
+        {**_in_xz_keys(bc, _expressions(FlowBoundaryCondition)),
+         "boundary": SLAB_FACES[bc["boundary"]]} for bc in flow.get("boundary_conditions") or ()]
+    return out
+
+
+def _initial_stress(stress) -> list | None:
+    """2D ``[σ_xx, σ_yy, σ_xy]`` as the slab's ``[σ_xx, σ_yy, σ_zz, σ_yz, σ_xz, σ_xy]``.
+
+    The out-of-plane ``σ_yy`` of the slab is 0: the 2D scene does not give it and it acts on
+    nothing (``n⁺`` has no ``y`` component, ``u_y = 0`` on front and back).
+    """
+    if stress is None:
+        return None
+    sxx, syy, sxy = (_in_xz(s) for s in stress)
+    return [sxx, 0.0, syy, 0.0, sxy, 0.0]
+
+
+def _slab_mechanics(raw: dict) -> None:
+    """Material, contact, fracture pressure and boundary conditions of the slab, in place."""
     material = dict(raw.get("material") or {})
-    if material.get("initial_stress") is not None:
-        raise ValueError("a slab does not map material.initial_stress")
     raw["material"] = {k: _vector(v, 0.0) if k == "body_force" else _in_xz(v)
-                       for k, v in material.items()}
+                       for k, v in material.items() if k != "initial_stress"}
+    if material.get("initial_stress") is not None:
+        raw["material"]["initial_stress"] = _initial_stress(material["initial_stress"])
     raw["contact"] = {k: _in_xz(v) for k, v in (raw.get("contact") or {}).items()}
     if "fracture_pressure" in raw:
         raw["fracture_pressure"] = _in_xz(raw["fracture_pressure"])
@@ -194,35 +239,52 @@ def _slab_raw(raw: Mapping, slab: SlabGeometry, fractures: list[list[list[float]
             bcs.append({"boundary": face, "traction": _vector(bc["traction"], 0.0)})
     raw["boundary_conditions"] = bcs + [{"boundary": b, "displacement": [None, 0.0, None]}
                                         for b in ("front", "back")]
-    raw["geometry"] = {"domain": {"box": list(slab.box)},
-                       "fractures": [{"name": f.name, "polygon": p}
-                                     for f, p in zip(slab.fractures, fractures, strict=True)]}
-    raw["mesh"] = {"size": slab.upper[1] - slab.lower[1]}
     solver = dict(raw.get("solver") or {})
     if solver.get("linear_solver", "auto") == "auto":
         # the 2D scene's solver: direct (faster at slab sizes; with Jacobi smoothing, GAMG
         # stalled on this one layer of cells, hence SOR for contact Jacobians)
         solver["linear_solver"] = "direct"
     raw["solver"] = solver
+
+
+def _slab_raw(raw: Mapping, slab: SlabGeometry, fractures: list[list[list[float]]]) -> dict:
+    """The raw 3D scene of the slab (with the given fracture polygons)."""
+    raw = copy.deepcopy(dict(raw))
+    if raw.get("physics", "mechanics") != "flow":
+        _slab_mechanics(raw)
+    if raw.get("flow") is not None:
+        raw["flow"] = _slab_flow(raw["flow"])
+    if raw.get("gravity") is not None:
+        raw["gravity"] = _vector(raw["gravity"], 0.0)
+    middle = 0.5 * (slab.lower[1] + slab.upper[1])
+    raw["probes"] = [{**p, "start": _vector(p["start"], middle), "end": _vector(p["end"], middle)}
+                     for p in raw.get("probes") or ()]
+    raw["geometry"] = {"domain": {"box": list(slab.box)},
+                       "fractures": [{"name": f.name, "polygon": p}
+                                     for f, p in zip(slab.fractures, fractures, strict=True)]}
+    raw["mesh"] = {"size": slab.upper[1] - slab.lower[1]}
     return raw
 
 
 def slab_scene(raw: Mapping, slab: SlabGeometry) -> Scene:
-    """The 3D scene of the slab of a 2D mechanics scene (validated).
+    """The 3D scene of the slab of a 2D scene (validated).
 
     ``raw`` is the 2D scene's mapping (after overrides; :func:`load_scene_and_raw`). Boundary
-    conditions go to the box faces of their edges (a 2D vector ``[v_x, v_y]`` becomes
-    ``[v_x, ·, v_y]``, the name ``y`` in expressions becomes ``z``); ``u_y = 0`` is imposed on
-    front and back. Contact, material, time stepping, solver and output are kept, except that
-    an ``auto`` linear solver is direct, as in 2D (faster at these sizes). The
-    scene's ``mesh`` key only holds the slab thickness (the mesh is :func:`slab_mesh`'s).
+    conditions, mechanical and flow, go to the box faces of their edges (a 2D vector
+    ``[v_x, v_y]`` becomes ``[v_x, ·, v_y]``, the name ``y`` in expressions becomes ``z``);
+    ``u_y = 0`` is imposed on front and back, which are impervious. Gravity ``[g_x, g_y]``
+    becomes ``[g_x, 0, g_y]``, probes run at mid-thickness (a point ``[x, y]`` becomes
+    ``[x, H/2, y]``), the initial stress gets ``σ_yy = 0`` out of the plane, the matrix
+    permeability ``k_yy = k_xx`` across the slab (:func:`_permeability`). Contact, material, flow
+    coefficients, coupling, time stepping, solver and output are kept, except that an ``auto``
+    linear solver is direct, as in 2D (faster at these sizes). The scene's ``mesh`` key only
+    holds the slab thickness (the mesh is :func:`slab_mesh`'s).
 
     The 3D checks of a box geometry are made for gmsh and require planar fractures: they are
     run on each fracture's chord (the rectangle from its first to its last point), and the
     scene then holds the extruded polylines of ``slab``.
 
     Raises:
-        ValueError: A key the slab cannot map (gravity, probes, flow, initial stress).
         ConfigError: The 3D scene is invalid.
     """
     chords = [np.concatenate([f.points[[0, n // 2 - 1]], f.points[[n // 2, n - 1]]]).tolist()
@@ -234,19 +296,21 @@ def slab_scene(raw: Mapping, slab: SlabGeometry) -> Scene:
         scene, geometry=dataclasses.replace(scene.geometry, fractures=specs))
 
 
-#: The per-fracture quantities of :func:`fracture_summary`.
+#: The per-fracture quantities of :func:`fracture_summary`, and those it adds with a flow.
 SUMMARY_FIELDS = ("jump_n", "jump_t", "jump_y", "open", "stick", "slip")
+FLOW_FIELDS = ("aperture", "p_f")
 
 
-def fracture_summary(model, fm: FracturedMesh) -> dict[str, npt.NDArray[np.float64]]:
-    """Per fracture, the final state of a 2D run or of its slab (collective).
+def fracture_summary(model, fm: FracturedMesh, flow=None) -> dict[str, npt.NDArray[np.float64]]:
+    """Per fracture, the current state of a 2D run or of its slab (collective).
 
     ``jump_n`` and ``jump_t``: means over the fracture (weighted by face length or area) of the
     normal jump and of the tangential jump along the 2D tangent ``τ`` (in 3D its component on
     ``τ_1 = (τ_x, 0, τ_y)``); ``jump_y``: the largest ``|[[u]]_y|`` of a face (0 in 2D), the
     slip out of the plane; ``open``, ``stick``, ``slip``: the fractions of the fracture's length
-    or area in each contact state (:meth:`MechanicsModel.states`). Each is an array over the
-    fractures, reduced over the ranks.
+    or area in each contact state (:meth:`MechanicsModel.states`). With the Darcy problem
+    ``flow`` of a coupled run, also the means of the aperture (m) and of the fracture pressure
+    ``p_f`` (Pa). Each is an array over the fractures, reduced over the ranks.
     """
     values, faces = model.face_fields(), fm.fractures
     if "jump_tx" in values:
@@ -268,4 +332,7 @@ def fracture_summary(model, fm: FracturedMesh) -> dict[str, npt.NDArray[np.float
                                               for j in range(k)]), op=MPI.MAX)}
     for code, name in enumerate(("open", "stick", "slip")):
         out[name] = total(w * (states == code)) / length
+    if flow is not None:
+        out["aperture"] = total(w * flow.properties.aperture) / length
+        out["p_f"] = total(w * flow.fracture_pressure) / length
     return out
