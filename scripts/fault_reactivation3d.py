@@ -233,21 +233,28 @@ def report(rows: list[dict], reference: str, scene) -> None:
 
 
 def picture(outdir: Path, scene) -> None:
-    """Slip on the faults at shut-in, seen from the hanging wall's side."""
+    """Slip on the fault at shut-in, seen from above its hanging wall; the other fractures grey."""
     import pyvista as pv
 
     pv.OFF_SCREEN = True
     s = read_series(outdir, "fractures")
     k = int(np.argmin(np.abs(np.array(s.times) - float(scene.parameters["T_inj"]))))
-    cells = np.hstack([np.full((len(s.cells), 1), 3), s.cells]).ravel()
-    grid = pv.PolyData(s.points, cells)
-    grid.cell_data["slip (mm)"] = 1e3 * s.fields(k)["jump_t"]
+    on, _ = fault_mask(scene, s.points, s.cells)
+    slip = 1e3 * s.fields(k)["jump_t"]
     p = pv.Plotter(off_screen=True, window_size=(900, 700))
-    p.add_mesh(grid, scalars="slip (mm)", cmap="viridis", show_edges=False)
-    box = pv.Box(bounds=(0, 400, 0, 400, -2200, -1800))
-    p.add_mesh(box, style="wireframe", color="gray")
-    p.view_vector((1.0, -1.2, 0.6))
-    p.add_text(f"slip at shut-in (t = {s.times[k]:.0f} s)", font_size=10)
+    for mask, opaque in ((on, True), (~on, False)):
+        cells = np.hstack([np.full((int(mask.sum()), 1), 3), s.cells[mask]]).ravel()
+        grid = pv.PolyData(s.points, cells)
+        if opaque:
+            grid.cell_data["slip (mm)"] = slip[mask]
+            p.add_mesh(grid, scalars="slip (mm)", cmap="inferno", show_edges=True,
+                       edge_color="#555555", line_width=0.3)
+        else:
+            p.add_mesh(grid, color="lightgrey", opacity=0.35)
+    p.add_mesh(pv.Box(bounds=(0, 400, 0, 400, -2200, -1800)), style="wireframe", color="gray")
+    p.view_vector((-0.8, -0.45, 0.6))
+    p.add_text(f"fault slip at shut-in (t = {s.times[k]:.0f} s); conjugate fault and joint grey",
+               font_size=9)
     IMAGES.mkdir(parents=True, exist_ok=True)
     p.screenshot(str(IMAGES / "fault_reactivation3d.png"))
 
