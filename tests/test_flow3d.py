@@ -2,6 +2,7 @@
 1 rank = 2 ranks, and a 3D flow scene end to end."""
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -154,6 +155,25 @@ def test_blocking_fracture_stops_a_crossing_conduit(monkeypatch):
     monkeypatch.setattr(problem_module, "crossing_resistance",
                         lambda crossed, c, d: np.zeros(crossed.shape[:2]))
     assert outflow(1e2) > 1e3 * alone  # the defect the resistance removes
+
+
+def test_crossing_resistance_scales_with_viscosity():
+    """Pressure conditions only: pressures independent of η, fluxes ∝ 1/η, at partly
+    blocking crossings (the X and the T of ``network_geometry``, ``T ΔR = O(1)``)."""
+    fm = uniform_mesh(comm, network_geometry(), 0.125)
+    bcs = [FlowBoundary("left", (0,), "pressure", lambda x, t: np.ones(len(x))),
+           FlowBoundary("right", (1,), "pressure", lambda x, t: np.zeros(len(x)))]
+    out = {}
+    for eta in (1.0, 1e-3):
+        props = replace(properties(fm, np.eye(3), aperture=1e-2, kn=[1e-3, 1e-4, 1e-3],
+                                   kt=[1e-2, 1e-3, 1e-2]), viscosity=eta)
+        pb = DarcyProblem(fm, props, bcs, solver="direct")
+        pb.solve()
+        assert comm.allreduce(pb.crossings.num_crossing) > 0
+        out[eta] = pb.p.copy(), compute_fluxes(pb).fracture
+        pb.destroy()
+    assert np.abs(out[1.0][0] - out[1e-3][0]).max() < 1e-10
+    assert np.allclose(out[1e-3][1], 1e3 * out[1.0][1], rtol=1e-8, atol=1e-12)
 
 
 SCENE = {

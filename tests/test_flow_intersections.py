@@ -8,6 +8,8 @@
 * conductive-conductive intersections of the verified cases are unchanged, exactly.
 """
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from conftest import ROOT
@@ -87,6 +89,27 @@ def test_network_crossings_and_blocking_junctions():
         sols[solver] = pb.p.copy()
         pb.destroy()
     assert np.abs(sols["direct"] - sols["iterative"]).max() < 1e-8
+
+
+def test_crossing_resistance_scales_with_viscosity():
+    """Pressure conditions only: the pressures do not depend on the viscosity, fluxes ∝ 1/η.
+
+    The junctions are partly blocking (``T ΔR ≈ 6``), so that an overlap resistance not
+    scaled by ``η`` like the half faces would change the pressures at the X and the T.
+    """
+    fm = uniform_mesh(comm, network(), 0.08)
+    bcs = [FlowBoundary("left", (3,), "pressure", lambda x, t: np.ones(len(x))),
+           FlowBoundary("right", (1,), "pressure", lambda x, t: np.zeros(len(x)))]
+    out = {}
+    for eta in (1.0, 1e-3):
+        props = replace(properties(fm, perm=np.eye(2), aperture=1e-3, kn=1e-5, kt=1e-2),
+                        viscosity=eta)
+        pb = DarcyProblem(fm, props, bcs, solver="direct")
+        pb.solve()
+        out[eta] = pb.p.copy(), compute_fluxes(pb).fracture
+        pb.destroy()
+    assert np.abs(out[1.0][0] - out[1e-3][0]).max() < 1e-10
+    assert np.allclose(out[1e-3][1], 1e3 * out[1.0][1], rtol=1e-8, atol=1e-12)
 
 
 def conduit_ends(pb: DarcyProblem) -> dict:

@@ -251,7 +251,8 @@ class DarcyProblem:
         C_f = fracture_conductivity(props)
         with np.errstate(divide="ignore"):
             crossed = self.crossings.averages(np.column_stack([0.5 / T_f, props.aperture]))
-        added = crossing_resistance(crossed, C_f, props.aperture)
+        # ΔR is a geometric resistance (1/m²); in series with T/η it counts η times
+        added = eta * crossing_resistance(crossed, C_f, props.aperture)
         if self.dim == 2:
             half = hfv.fracture_half_transmissibilities(self.faces.measure, C_f)
             self.T_half = np.column_stack([half, half]) / eta
