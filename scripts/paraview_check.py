@@ -11,13 +11,15 @@ checks that
 * the reader's time steps are the times of the XDMF index, every one of them in
   ``summary.json`` (a solved step, or t = 0), the last one the end of a finished run;
 * every time step loads, with the numbers of points and cells of the index, its cell type
-  (triangles, tetrahedra or segments) and exactly its arrays (name, point/cell, components),
-  finite, and equal to the per-step HDF5 data when h5py is importable;
+  (triangles, tetrahedra or segments) and exactly its arrays (name, point/cell, number of
+  tuples and components), finite, and equal to the per-step HDF5 data when h5py is
+  importable; the ranges ParaView reports for each component (its Information panel and
+  colour maps) are then the minimum and maximum of the HDF5 data;
 * the displacement warps (Warp By Vector) at every time step: the warped points are the points
   moved by the scale factor times ``u``;
 * one PNG per file renders off-screen at the last time (``OUTDIR/plots/paraview_<stem>.png``,
-  or ``--png-dir``); in 3D the displacement is cut in half (a clip through the domain's centre)
-  so that the warped fractures show.
+  or ``--png-dir``); in 3D the displacement and the flow fields of the matrix are cut in half
+  (a clip through the domain's centre) so that the fractures and the inside show.
 
 A run killed at any moment (``kill -9``) must pass too: its index lists only completed steps.
 Prints one Markdown table row per file; the exit status is the number of files that failed.
@@ -168,10 +170,12 @@ def check_step(reader, step, outdir):
         if have != set(want):
             raise CheckError(f"t = {step['time']}: {center} arrays {sorted(have)}, index "
                              f"{sorted(want)}")
+        size = step["points"] if center == "Node" else step["cells"]
         for name, (_, comps, file, dataset) in want.items():
             values = vtk_to_numpy(fields.GetArray(name))
-            if (values.shape[1] if values.ndim == 2 else 1) != comps:
-                raise CheckError(f"t = {step['time']}: {name} has shape {values.shape}")
+            if (values.shape[1] if values.ndim == 2 else 1) != comps or len(values) != size:
+                raise CheckError(f"t = {step['time']}: {name} has shape {values.shape}, "
+                                 f"index {size} × {comps}")
             if not (values == values).all():
                 raise CheckError(f"t = {step['time']}: {name} has NaN")
             if h5py is not None:
@@ -179,6 +183,24 @@ def check_step(reader, step, outdir):
                     stored = f[dataset][()]
                 if stored.shape != values.shape or abs(stored - values).max() > 0:
                     raise CheckError(f"t = {step['time']}: {name} differs from {file}")
+
+
+def check_ranges(reader, step, outdir):
+    """The ranges ParaView reports (Information panel, colour maps) are those of the HDF5 data.
+
+    Per component, from the reader proxy's data information at the step's time: the path by
+    which the ranges reach the client, not the fetched dataset of :func:`check_step`.
+    """
+    reader.UpdatePipeline(step["time"])
+    for name, (center, comps, file, dataset) in step["attributes"].items():
+        info = (reader.PointData if center == "Node" else reader.CellData)[name]
+        got = [tuple(info.GetRange(c)) for c in range(comps)]
+        with h5py.File(outdir / file, "r") as f:
+            stored = f[dataset][()].reshape(-1, comps)
+        want = [(float(stored[:, c].min()), float(stored[:, c].max())) for c in range(comps)]
+        if got != want:
+            raise CheckError(f"t = {step['time']}: ParaView's range of {name} is {got}, the "
+                             f"HDF5 data's {want}")
 
 
 def check_warp(reader, step):
@@ -203,8 +225,8 @@ def check_warp(reader, step):
 def render(reader, time, png, solid):
     """One off-screen picture at ``time``: the displacement warped, other series coloured.
 
-    ``solid``: a 3D run (a perspective view; the displacement clipped, 3D fractures coloured
-    by their normal jump).
+    ``solid``: a 3D run (a perspective view; the displacement and the matrix fields of flow
+    runs cut in half, 3D fractures coloured by their normal jump, or by ``p_f``).
     """
     view = GetActiveViewOrCreate("RenderView")
     view.ViewSize = [1200, 650]
@@ -226,6 +248,11 @@ def render(reader, time, png, solid):
             source.ClipType.Normal = [0.0, 1.0, 0.0]
         field = ("POINTS", "u", "Magnitude")
     else:
+        if solid and first_leaf(servermanager.Fetch(reader)).GetCellType(0) == 10:
+            source = Clip(Input=reader, ClipType="Plane", Crinkleclip=1)  # the inside shows
+            source.ClipType.Origin = [0.5 * (bounds[2 * i] + bounds[2 * i + 1])
+                                      for i in range(3)]
+            source.ClipType.Normal = [0.0, 1.0, 0.0]
         for name in (*(("jump_n",) if solid else ()), "state", "p_m", "p_f", *arrays):
             if name in arrays:
                 kind = "CELLS" if name in reader.CellData.keys() else "POINTS"
@@ -274,11 +301,14 @@ def check_file(reader_name, path, summary, png):
         raise CheckError(f"reader time steps {got}, index {times}")
     for s in steps:
         check_step(reader, s, path.parent)
+        if h5py is not None:
+            check_ranges(reader, s, path.parent)
         if any(a[0] == "Node" and name == "u" for name, a in s["attributes"].items()):
             check_warp(reader, s)
     render(reader, times[-1], png, steps[-1]["solid"])
     Delete(reader)
-    return len(steps), sorted(steps[-1]["attributes"])
+    cells = f"{steps[-1]['cells']} {steps[-1]['topology'].lower()}"
+    return len(steps), cells, sorted(steps[-1]["attributes"])
 
 
 def main():
@@ -289,7 +319,7 @@ def main():
     args = parser.parse_args()
     version = servermanager.vtkSMProxyManager.GetParaViewSourceVersion()
     print(f"{version}, reader {args.reader}, h5py {'yes' if h5py else 'no (values unchecked)'}")
-    print("| run | file | steps | arrays | result |\n|---|---|---|---|---|")
+    print("| run | file | steps | cells | arrays | result |\n|---|---|---|---|---|---|")
     failed = 0
     for outdir in args.outdirs:
         summary = json.loads((outdir / "summary.json").read_text())
@@ -297,15 +327,15 @@ def main():
             pngdir = args.png_dir or outdir / "plots"
             png = pngdir / f"paraview_{outdir.name}_{path.stem}.png"
             try:
-                n, arrays = check_file(args.reader, path, summary, png)
-                result, info = "pass", (str(n), ", ".join(arrays))
+                n, cells, arrays = check_file(args.reader, path, summary, png)
+                result, info = "pass", (str(n), cells, ", ".join(arrays))
             except Exception as err:  # noqa: BLE001  (reported per file)
                 failed += 1
-                result, info = f"FAIL: {err}", ("", "")
+                result, info = f"FAIL: {err}", ("", "", "")
                 if not isinstance(err, CheckError):
                     traceback.print_exc()
             print(f"| {outdir.name} ({summary.get('status')}) | {path.name} | {info[0]} | "
-                  f"{info[1]} | {result} |", flush=True)
+                  f"{info[1]} | {info[2]} | {result} |", flush=True)
     view = GetActiveView()
     if view is not None:  # else pvpython's exit through sys.exit fails with GLXBadContext
         Delete(view)

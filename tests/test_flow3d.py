@@ -1,12 +1,13 @@
 """3D HFV flow: convergence with pressure jumps, affine patch on a network, blocking crossings,
-1 rank = 2 ranks, and a 3D flow scene end to end."""
+crossing resistances scaled by the viscosity, 1 rank = 2 ranks, the 3D GAMG defaults, and 3D
+flow scenes end to end (the shipped ``configs/flow3d_network.yaml`` on a coarser mesh)."""
 
 import json
 from dataclasses import replace
 
 import numpy as np
 import pytest
-from conftest import config_error, run_parallel
+from conftest import ROOT, config_error, run_parallel
 from mpi4py import MPI
 
 from poromech.flow import problem as problem_module
@@ -264,3 +265,41 @@ def test_fracture_field_may_vanish_on_the_fracture_edge():
     raw["flow"]["fractures"] = [{"fracture": "c", "aperture": "1e-4*(x - 0.25)"}]
     err = config_error(raw)
     assert "flow.fractures.0.aperture" in err and "must be > 0" in err, err
+
+
+def test_gamg_defaults_by_dimension():
+    """3D: two levels of aggressive coarsening (docs/flow/flow3d_scale.md); 2D unchanged; the
+    scene's options still win."""
+    from poromech.flow.solver import ITERATIVE_OPTIONS, merged_options
+
+    assert merged_options("iterative", None, 2) == ITERATIVE_OPTIONS
+    assert merged_options("iterative", None, 3) == ITERATIVE_OPTIONS | {
+        "pc_gamg_aggressive_coarsening": 2}
+    assert merged_options("iterative", {"pc_gamg_aggressive_coarsening": 1}, 3) == (
+        ITERATIVE_OPTIONS | {"pc_gamg_aggressive_coarsening": 1})
+    assert "pc_gamg_aggressive_coarsening" not in merged_options("direct", None, 3)
+
+
+def test_shipped_network_scene(tmp_path):
+    """``configs/flow3d_network.yaml`` on a coarser mesh: the barrier holds back the inlet's
+    pressure, the flow leaves through the right face only, mass is conserved."""
+    from poromech.run import run_scene
+    from poromech.scene.loading import load_scene
+
+    scene = load_scene(ROOT / "configs" / "flow3d_network.yaml",
+                       ["mesh.size=0.2", "mesh.fracture_size=0.1", "output.xdmf=false"])
+    summary = run_scene(scene, tmp_path, comm)
+    solve = summary["flow"]["solves"][-1]
+    assert solve["reason"] == "CONVERGED_RTOL" and solve["iterations"] < 60
+    assert solve["mass_balance"]["relative_residual"] < 1e-10
+    bnd = solve["boundary_fluxes"]
+    assert bnd["left"]["fracture"] < 0 and bnd["right"]["fracture"] > 0  # inlet in, xa out
+    assert bnd["right"]["total"] == pytest.approx(-bnd["left"]["total"], rel=1e-9)
+    for name in ("front", "back", "bottom", "top"):
+        assert abs(bnd[name]["total"]) < 1e-10 * bnd["right"]["total"]
+    rows = np.genfromtxt(tmp_path / "probe_upper.csv", delimiter=",", names=True)
+    before, after = rows["p_m"][rows["x"] < 0.5][-1], rows["p_m"][rows["x"] > 0.5][0]
+    assert before > 0.8e5 and after < 0.3e5  # most of the drop is across the barrier
+    lower = np.genfromtxt(tmp_path / "probe_lower.csv", delimiter=",", names=True)
+    assert np.all(np.isfinite(lower["p_f"][lower["x"] > 0.36]))  # along xa
+    assert np.all(np.isnan(lower["p_f"][lower["x"] < 0.34]))

@@ -212,7 +212,7 @@ class DarcyProblem:
         self.x = PETSc.Vec().createGhost(d.ghosts.astype(PETSc.IntType),
                                          (d.num_owned, d.num_global), comm=self.comm)
         self._global = d.local_to_global(np.arange(d.num_local)).astype(PETSc.IntType)
-        self.solver = LinearSolver(self.A, prefix, solver, options)
+        self.solver = LinearSolver(self.A, prefix, solver, options, self.dim)
         self.p = np.zeros(d.num_local)
         self.head = None if gravity is None else d.points @ np.asarray(gravity, dtype=float)
         self.shift = TraceShift(fm, d, self.geom.facets)
