@@ -51,8 +51,8 @@ ITERATIVE_OPTIONS: dict[str, object] = {
 #: squared) on the first two levels instead of the first only. On tetrahedral meshes one level
 #: coarsens by about 10 and leaves dense middle levels (200-700 nonzeros per row) whose Galerkin
 #: products dominate the set-up; with two, the operator complexity falls from 2.4 to 1.6 and
-#: the set-up to about a third at the same CG iterations (``docs/flow/flow3d_scale.md``: 35 at
-#: 0.3M and 1.6M unknowns, solve with set-up 51 s → 27 s at 1.6M on 1 rank). 2D keeps one.
+#: the set-up to a quarter to a third at the same CG iterations (``docs/flow/flow3d_scale.md``:
+#: 35 at 0.3M and 1.6M unknowns, solve with set-up 53 s → 21 s at 1.6M on 1 rank). 2D keeps one.
 ITERATIVE_OPTIONS_3D: dict[str, object] = {**ITERATIVE_OPTIONS,
                                            "pc_gamg_aggressive_coarsening": 2}
 
