@@ -12,6 +12,7 @@ from pathlib import Path
 
 import dolfinx_solver  # noqa: F401, I001  (loads MPI before any DOLFINx/PETSc import in tests)
 
+import numpy as np
 import pytest
 import yaml
 
@@ -141,3 +142,23 @@ def is_flow_3d_scene(path: Path) -> bool:
 #: Skip a test that runs or validates a 3D flow scene while this version refuses 3D flow.
 needs_flow_3d = pytest.mark.skipif(not flow_3d_available(),
                                    reason="physics 'flow' is not available in 3D in this version")
+
+
+def flow_properties(fm, perm, aperture=1e-2, kn=np.nan, kt=np.nan, cond=np.nan):
+    """FlowProperties of a flow test: ``perm`` one ``(d, d)`` tensor; fracture values scalars or
+    one per fracture; viscosity 1, no storage."""
+    from poromech.flow.problem import FlowProperties
+
+    d = fm.msh.topology.dim
+    nc = fm.msh.topology.index_map(d).size_local
+    nf = len(fm.fractures.facets)
+
+    def per_face(v):
+        v = np.asarray(v, dtype=float)
+        return v[fm.fractures.fracture] if v.ndim else np.full(nf, float(v))
+
+    return FlowProperties(
+        permeability=np.broadcast_to(perm, (nc, d, d)).copy(), viscosity=1.0,
+        aperture=per_face(aperture), fracture_permeability=per_face(kt),
+        normal_permeability=per_face(kn), conductivity=per_face(cond), storage=np.zeros(nc),
+    )

@@ -7,13 +7,13 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from conftest import ROOT, config_error, run_parallel
+from conftest import ROOT, config_error, flow_properties, run_parallel
 from mpi4py import MPI
 
 from poromech.flow import problem as problem_module
 from poromech.flow.balance import boundary_fluxes, compute_fluxes, mass_balance
 from poromech.flow.boundary import FlowBoundary
-from poromech.flow.problem import DarcyProblem, FlowProperties
+from poromech.flow.problem import DarcyProblem
 from poromech.geometry.box import BoxGeometry, Fracture3D
 from poromech.verification.flow import JumpSolution, observed_orders, uniform_mesh
 
@@ -25,19 +25,8 @@ def rect(name, corners):
     return Fracture3D.polygon(name, corners)
 
 
-def properties(fm, perm, aperture=1e-2, kn=np.nan, kt=np.nan, cond=np.nan):
-    nc = fm.msh.topology.index_map(3).size_local
-    nf = len(fm.fractures.facets)
-
-    def per_face(v):
-        v = np.asarray(v, dtype=float)
-        return v[fm.fractures.fracture] if v.ndim else np.full(nf, float(v))
-
-    return FlowProperties(
-        permeability=np.broadcast_to(perm, (nc, 3, 3)).copy(), viscosity=1.0,
-        aperture=per_face(aperture), fracture_permeability=per_face(kt),
-        normal_permeability=per_face(kn), conductivity=per_face(cond), storage=np.zeros(nc),
-    )
+def properties(fm, perm, **fracture):
+    return flow_properties(fm, perm, **fracture)
 
 
 @pytest.fixture(scope="module")

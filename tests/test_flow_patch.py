@@ -2,13 +2,13 @@
 
 import numpy as np
 import pytest
-from conftest import network_geometry
+from conftest import flow_properties, network_geometry
 from mpi4py import MPI
 
 from poromech.flow.balance import boundary_fluxes, compute_fluxes, mass_balance
 from poromech.flow.boundary import FlowBoundary
 from poromech.flow.hfv import isotropic_tensor, permeability_tensors
-from poromech.flow.problem import DarcyProblem, FlowProperties
+from poromech.flow.problem import DarcyProblem
 from poromech.flow.shift import TraceShift
 from poromech.verification.flow import rectangle, uniform_mesh
 
@@ -17,19 +17,8 @@ LAMBDA = np.array([[2.0, 0.5], [0.5, 1.0]])
 GRAD = np.array([2.0, -3.0])
 
 
-def properties(fm, perm=LAMBDA, aperture=1e-2, kn=np.nan, kt=np.nan, cond=np.nan):
-    nc = fm.msh.topology.index_map(2).size_local
-    nf = len(fm.fractures.facets)
-
-    def per_face(v):
-        v = np.asarray(v, dtype=float)
-        return v[fm.fractures.fracture] if v.ndim else np.full(nf, float(v))
-
-    return FlowProperties(
-        permeability=np.broadcast_to(perm, (nc, 2, 2)).copy(), viscosity=1.0,
-        aperture=per_face(aperture), fracture_permeability=per_face(kt),
-        normal_permeability=per_face(kn), conductivity=per_face(cond), storage=np.zeros(nc),
-    )
+def properties(fm, perm=LAMBDA, **fracture):
+    return flow_properties(fm, perm, **fracture)
 
 
 def max_error(pb, exact, traces=True):
