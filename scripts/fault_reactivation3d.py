@@ -1,7 +1,8 @@
 """The 3D fault-reactivation scene: history, error against run time, and the cost ratios.
 
     python scripts/fault_reactivation3d.py            # three levels, nitsche and stabilized_mixed
-    python scripts/fault_reactivation3d.py --levels coarse medium --formulations nitsche
+    python scripts/fault_reactivation3d.py --levels coarse medium --formulations nitsche-P1
+    python scripts/fault_reactivation3d.py --levels xfine --formulations nitsche-P2 --ranks 2
     python scripts/fault_reactivation3d.py --report              # tables and figures only
 
 Runs ``configs/fault_reactivation3d.yaml`` (a normal fault at 2 km depth crossed by a
@@ -12,10 +13,16 @@ interrupted study keeps its finished rows):
 
 * the fault's history per output time: area-weighted mean slip ``|[[u]]_τ|``, slipping area,
   mean aperture, and the mean fracture pressure within 30 m of the injection point;
-* the cost: wall time, g evaluations per step, contact Newton iterations, Darcy solves, and
-  the ratio ``total time / (steps × (one elastic solve + one Darcy solve))``, where one elastic
-  solve is the mean cost of a contact Newton iteration (assembly and linear solve) and one
-  Darcy solve the mean cost of a Darcy solve of the run;
+* the cost: wall time, peak memory (resident size of the largest rank), g evaluations per
+  step, contact Newton and Krylov iterations, Darcy solves and CG iterations, and the ratio
+  ``total time / (steps × (one elastic solve + one Darcy solve))``. One elastic solve is the
+  scene's mechanics alone with open fractures (``contact.formulation: none``, one step: the
+  assembly, solver set-up and solve of its linear system, from its ``summary.json``), one
+  Darcy solve the scene's flow alone (``physics: flow``, one step: assembly, set-up, solve),
+  each on the same mesh and ranks with the same solver defaults, run by the command line as
+  a user does. The per-iteration ratio beside it divides instead by the run's own mean cost
+  of a contact Newton iteration and of a Darcy solve, both of which reuse set-ups (stale
+  factorizations, the constant bulk stiffness, the lagged AMG of the Darcy solve);
 * the error of the mean-slip and pressure histories (relative L² over the output times)
   against the reference run (``--reference``, by default the finest ``stabilized_mixed`` P1
   run; ``mixed`` P2, the one formulation with exact stick, costs too much on the fine mesh
@@ -31,6 +38,7 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
+import os
 import subprocess
 import sys
 import time
@@ -53,18 +61,22 @@ SCENE = ROOT / "configs" / "fault_reactivation3d.yaml"
 CSV = DOCS / "fault_reactivation3d.csv"
 RUNS = ROOT / "results" / "fault_reactivation3d_study"
 
-#: Mesh levels: (mesh.size, mesh.fracture_size) in m.
-LEVELS = {"coarse": (60.0, 22.0), "medium": (40.0, 15.0), "fine": (28.0, 10.0)}
+#: Mesh levels: (mesh.size, mesh.fracture_size) in m. ``xfine`` is the ≥ 1M-unknown level of
+#: the performance target with P2 (232k tetrahedra, 1.02M P2 displacement unknowns).
+LEVELS = {"coarse": (60.0, 22.0), "medium": (40.0, 15.0), "fine": (28.0, 10.0),
+          "xfine": (15.0, 5.0)}
 #: Formulation and degree of each run (mixed P1 is not inf-sup stable in 3D).
 VARIANTS = {
     "nitsche-P1": ("nitsche", 1),
     "mean_nitsche-P1": ("mean_nitsche", 1),
     "stabilized_mixed-P1": ("stabilized_mixed", 1),
+    "nitsche-P2": ("nitsche", 2),
     "mixed-P2": ("mixed", 2),
 }
 INJECTION_RADIUS = 30.0
-COLUMNS = ["variant", "level", "ranks", "dofs", "flow_unknowns", "steps", "wall_s",
-           "g_per_step", "newton", "darcy_solves", "elastic_s", "darcy_s", "cost_ratio",
+COLUMNS = ["variant", "level", "ranks", "dofs", "flow_unknowns", "steps", "wall_s", "peak_gb",
+           "g_per_step", "newton", "krylov", "darcy_solves", "darcy_cg", "elastic_s", "darcy_s",
+           "cost_ratio", "newton_s", "darcy_solve_s", "ratio_per_iteration",
            "slip_mm_at_shut_in", "slip_mm_final", "slip_error", "pressure_error", "status"]
 
 
@@ -96,36 +108,85 @@ def history(scene, outdir: Path) -> dict[str, np.ndarray]:
     return {"time": np.array(s.times), **{k: np.array(v) for k, v in out.items()}}
 
 
-def run_one(variant: str, level: str, ranks: int) -> tuple[Path, dict, float]:
-    """Run one case through the command line (as a user does); its outputs and summary."""
+def _execute(cmd: list[str]) -> tuple[float, float, int]:
+    """Run ``cmd``; wall time (s), peak resident size of its largest process (GB), exit code."""
+    start = time.perf_counter()
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    _, status, usage = os.wait4(proc.pid, 0)
+    wall = time.perf_counter() - start
+    proc.stderr.read()
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    return wall, usage.ru_maxrss * 1024.0 / 1e9, proc.returncode
+
+
+def _command(scene: Path, out: Path, ranks: int, overrides: list[str]) -> list[str]:
+    cmd = [str(Path(sys.executable).parent / "poromech"), "run", str(scene), "-q",
+           "--overwrite", "-o", str(out)]
+    for o in overrides:
+        cmd += ["--set", o]
+    if ranks > 1:
+        cmd = [str(Path(sys.executable).parent / "mpirun"), "-n", str(ranks), *cmd]
+    return cmd
+
+
+def run_one(variant: str, level: str, ranks: int) -> tuple[Path, dict, float, float]:
+    """Run one case through the command line (as a user does); outputs, summary, wall, GB."""
     formulation, degree = VARIANTS[variant]
     size, fsize = LEVELS[level]
     out = RUNS / f"{variant}-{level}-n{ranks}"
-    cmd = [str(Path(sys.executable).parent / "poromech"), "run", str(SCENE), "-q",
-           "--overwrite", "-o", str(out),
-           "--set", f"contact.formulation={formulation}", "--set", f"degree={degree}",
-           "--set", f"mesh.size={size}", "--set", f"mesh.fracture_size={fsize}"]
-    if ranks > 1:
-        cmd = [str(Path(sys.executable).parent / "mpirun"), "-n", str(ranks), *cmd]
-    start = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True)
-    wall = time.perf_counter() - start
+    wall, peak, code = _execute(_command(SCENE, out, ranks, [
+        f"contact.formulation={formulation}", f"degree={degree}", f"mesh.size={size}",
+        f"mesh.fracture_size={fsize}"]))
     summary = json.loads((out / "summary.json").read_text()) if (out / "summary.json").exists() \
-        else {"status": f"failed ({proc.returncode})"}
-    return out, summary, wall
+        else {"status": f"failed ({code})"}
+    return out, summary, wall, peak
 
 
-def costs(summary: dict) -> dict:
-    """Per-run cost figures from the summary."""
+def unit_solves(level: str, degree: int, ranks: int) -> tuple[float, float]:
+    """One elastic and one Darcy solve of the scene on ``level`` (s): see the module docstring."""
+    import yaml
+
+    raw = yaml.safe_load(SCENE.read_text())
+    size, fsize = LEVELS[level]
+    one_step = {"final": raw["time"]["final"] / raw["time"]["steps"], "steps": 1}
+    mech = {**{k: v for k, v in raw.items() if k not in ("flow", "probes")},
+            "physics": "mechanics", "contact": {"formulation": "none"}, "degree": degree,
+            "time": one_step}
+    flow = {**{k: v for k, v in raw.items()
+               if k not in ("material", "contact", "boundary_conditions", "degree", "probes")},
+            "physics": "flow", "time": one_step}
+    seconds = []
+    for name, data, key in (("mechanics", mech, None), ("flow", flow, "flow_solve")):
+        scene = RUNS / f"unit-{name}.yaml"
+        scene.parent.mkdir(parents=True, exist_ok=True)
+        scene.write_text(yaml.safe_dump(data))
+        out = RUNS / f"unit-{name}-{level}-P{degree}-n{ranks}"
+        _execute(_command(scene, out, ranks, [f"mesh.size={size}",
+                                              f"mesh.fracture_size={fsize}"]))
+        summary = json.loads((out / "summary.json").read_text())
+        if key is None:
+            solve = summary["solves"][0]
+            seconds.append(solve["time_assembly"] + solve["time_linear"])
+        else:
+            seconds.append(summary["wall_time"][key])
+    return seconds[0], seconds[1]
+
+
+def costs(summary: dict, units: tuple[float, float]) -> dict:
+    """Per-run cost figures from the summary and the unit solves."""
     c = summary["coupling"]
     steps = summary["completed_steps"]
-    elastic = c["mechanics_seconds"] / max(c["newton_iterations"], 1)
+    newton = c["mechanics_seconds"] / max(c["newton_iterations"], 1)
     darcy = c["darcy_seconds"] / max(c["darcy_solves"], 1)
     total = summary["wall_time"]["total"]
     return {"dofs": summary["dofs"], "flow_unknowns": summary["flow_unknowns"], "steps": steps,
             "g_per_step": c["g_evaluations"] / steps, "newton": c["newton_iterations"],
-            "darcy_solves": c["darcy_solves"], "elastic_s": elastic, "darcy_s": darcy,
-            "cost_ratio": total / (steps * (elastic + darcy))}
+            "krylov": summary["linear_solver"].get("krylov_iterations", 0),
+            "darcy_solves": c["darcy_solves"], "darcy_cg": c["darcy_iterations"],
+            "elastic_s": units[0], "darcy_s": units[1],
+            "cost_ratio": total / (steps * (units[0] + units[1])),
+            "newton_s": newton, "darcy_solve_s": darcy,
+            "ratio_per_iteration": total / (steps * (newton + darcy))}
 
 
 def relative_l2(a: np.ndarray, b: np.ndarray) -> float:
@@ -134,15 +195,19 @@ def relative_l2(a: np.ndarray, b: np.ndarray) -> float:
 
 def study(levels, variants, ranks: int, scene) -> None:
     done = {(r["variant"], r["level"], int(r["ranks"])) for r in read_rows()}
+    units: dict[tuple, tuple[float, float]] = {}
     for level in levels:
         for variant in variants:
             if (variant, level, ranks) in done:
                 continue
-            out, summary, wall = run_one(variant, level, ranks)
+            out, summary, wall, peak = run_one(variant, level, ranks)
             row = {"variant": variant, "level": level, "ranks": ranks, "wall_s": wall,
-                   "status": summary["status"]}
+                   "peak_gb": peak, "status": summary["status"]}
             if summary["status"] == "converged":
-                row.update(costs(summary))
+                degree = VARIANTS[variant][1]
+                if (level, degree, ranks) not in units:
+                    units[level, degree, ranks] = unit_solves(level, degree, ranks)
+                row.update(costs(summary, units[level, degree, ranks]))
                 h = history(scene, out)
                 np.savez(out / "history.npz", **h)
                 t_in = float(scene.parameters["T_inj"])
@@ -191,40 +256,53 @@ def report(rows: list[dict], reference: str, scene) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    head = ["variant", "level", "ranks", "dofs", "flow unknowns", "wall s", "g/step",
-            "Newton", "elastic s", "Darcy s", "cost ratio", "slip at shut-in mm",
-            "final slip mm", "slip error", "Δp error", "status"]
-    keys = ["variant", "level", "ranks", "dofs", "flow_unknowns", "wall_s", "g_per_step",
-            "newton", "elastic_s", "darcy_s", "cost_ratio", "slip_mm_at_shut_in",
-            "slip_mm_final", "slip_error", "pressure_error", "status"]
+    head = ["variant", "level", "ranks", "dofs", "flow unknowns", "wall s", "peak GB", "g/step",
+            "Newton", "Krylov", "Darcy CG", "elastic s", "Darcy s", "cost ratio",
+            "ratio per iteration", "slip at shut-in mm", "final slip mm", "slip error",
+            "Δp error", "status"]
+    keys = ["variant", "level", "ranks", "dofs", "flow_unknowns", "wall_s", "peak_gb",
+            "g_per_step", "newton", "krylov", "darcy_cg", "elastic_s", "darcy_s", "cost_ratio",
+            "ratio_per_iteration", "slip_mm_at_shut_in", "slip_mm_final", "slip_error",
+            "pressure_error", "status"]
     lines = ["# 3D fault reactivation: error against run time\n",
              f"Generated by `{COMMAND}` on {datetime.date.today().isoformat()} "
              f"(reference: {reference.replace('@', ' on the ')} mesh). Errors are relative L² "
              "over the output times of the fault's mean slip and of the overpressure at the "
-             "injection point. The cost ratio is total time / (steps × (one elastic solve + "
-             "one Darcy solve)).\n",
+             "injection point. Peak GB: resident size of the largest rank. Krylov: the "
+             "mechanics' iterations (0 with a factorization). The cost ratio is total time / "
+             "(steps × (one elastic solve + one Darcy solve)), where the elastic and Darcy "
+             "solves are the scene's mechanics (fractures open) and flow alone, one step each, "
+             "from the command line (columns elastic s and Darcy s); the ratio per iteration "
+             "divides by the run's mean cost of a contact Newton iteration and of a Darcy "
+             "solve instead, which reuse set-ups.\n",
              "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for row in rows:
         lines.append("| " + " | ".join(fmt(row.get(k, "")) for k in keys) + " |")
     (DOCS / "fault_reactivation3d.md").write_text("\n".join(lines) + "\n")
 
-    fig, ax = plt.subplots(1, 3, figsize=(13, 3.8))
-    for row in rows:
+    fig, ax = plt.subplots(2, 2, figsize=(11, 7))
+    ax = ax.ravel()
+    single = {(r["variant"], r["level"]) for r in rows if r["ranks"] == 1}
+    for row in rows:  # one curve per variant and level (1 rank where it ran)
         path = RUNS / f"{row['variant']}-{row['level']}-n{row['ranks']}" / "history.npz"
-        if row["ranks"] != 1 or not path.exists():
+        if (row["ranks"] != 1 and (row["variant"], row["level"]) in single) or not path.exists():
             continue
         h = np.load(path)
-        style = {"coarse": ":", "medium": "--", "fine": "-"}[row["level"]]
-        label = f"{row['variant']} {row['level']}"
+        style = {"coarse": ":", "medium": "--", "fine": "-", "xfine": "-."}[row["level"]]
+        label = f"{row['variant']} {row['level']}" + (f" ({row['ranks']} ranks)"
+                                                      if row["ranks"] != 1 else "")
         ax[0].plot(h["time"] / 3600, 1e3 * h["slip"], style, label=label)
-        ax[1].plot(h["time"] / 3600, (h["pressure"] - h["pressure"][0]) / 1e6, style)
-        if row.get("slip_error") not in ("", None):
-            ax[2].loglog(float(row["wall_s"]), float(row["slip_error"]), "o",
-                         color=ax[0].lines[-1].get_color())
-            ax[2].annotate(row["level"][0], (float(row["wall_s"]), float(row["slip_error"])))
+        color = ax[0].lines[-1].get_color()
+        ax[1].plot(h["time"] / 3600, 1e6 * h["aperture"], style, color=color)
+        ax[2].plot(h["time"] / 3600, (h["pressure"] - h["pressure"][0]) / 1e6, style,
+                   color=color)
+        if row.get("slip_error") not in ("", None) and float(row["slip_error"]) > 0:
+            ax[3].loglog(float(row["wall_s"]), float(row["slip_error"]), "o", color=color)
+            ax[3].annotate(row["level"][0], (float(row["wall_s"]), float(row["slip_error"])))
     ax[0].set(xlabel="time (h)", ylabel="mean slip on the fault (mm)")
-    ax[1].set(xlabel="time (h)", ylabel="overpressure at injection (MPa)")
-    ax[2].set(xlabel="wall time (s)", ylabel="mean-slip error")
+    ax[1].set(xlabel="time (h)", ylabel="mean aperture of the fault (µm)")
+    ax[2].set(xlabel="time (h)", ylabel="overpressure at injection (MPa)")
+    ax[3].set(xlabel="wall time (s)", ylabel="mean-slip error")
     ax[0].legend(fontsize=6)
     for a in ax:
         a.grid(True, alpha=0.3)
@@ -261,7 +339,8 @@ def picture(outdir: Path, scene) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--levels", nargs="+", default=list(LEVELS), choices=list(LEVELS))
+    ap.add_argument("--levels", nargs="+", default=["coarse", "medium", "fine"],
+                    choices=list(LEVELS))
     ap.add_argument("--formulations", nargs="+", choices=list(VARIANTS),
                     default=["nitsche-P1", "stabilized_mixed-P1"])
     ap.add_argument("--ranks", type=int, default=1)

@@ -1,5 +1,6 @@
 """The semi-smooth Newton solver: Jacobian consistency, line search, factorization reuse."""
 
+import dolfinx.fem.petsc
 import numpy as np
 import pytest
 from conftest import ROOT
@@ -113,6 +114,39 @@ def test_a_jacobian_without_contact_is_assembled_once(name):
     assert assemblies[False] == summary["coupling"]["newton_iterations"] + 1  # + the initial one
     for a, b in zip(fields[True], fields[False], strict=True):
         assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize(("name", "overrides"), [
+    ("inclined_crack_slip", ["contact.formulation=nitsche"]),
+    ("inclined_crack_slip", ["contact.formulation=mean_nitsche"]),
+    ("inclined_crack_slip", ["contact.formulation=stabilized_mixed"]),
+    ("inclined_crack_slip", ["contact.formulation=mixed", "degree=2"]),
+    ("network3d", ["degree=1", "mesh.size=0.75", "mesh.fracture_size=0.25", "time.final=2",
+                   "output.xdmf=false"]),
+])
+def test_jacobian_from_the_constant_bulk_equals_the_full_assembly(name, overrides):
+    """The Jacobian as the kept bulk stiffness plus the contact terms is, entry by entry and
+    bitwise, the Jacobian assembled from its full forms (2D, and 3D with Coulomb friction)."""
+    scipy = pytest.importorskip("scipy.sparse")
+    with run_of(name, *overrides) as run:
+        run.execute()
+        s = run.physics.solver
+        s.states_determine_jacobian = False  # assemble even in the last active set
+        s.snes.computeJacobian(s.x, s.A, s.A)  # (the first Jacobian of a run keeps the bulk)
+        assert s._K is not None
+        s.snes.computeJacobian(s.x, s.A, s.A)
+        full = dolfinx.fem.petsc.assemble_matrix(s.J, s.bcs, diag=1.0)
+        full.assemble()
+
+        def csr(M):
+            return scipy.csr_matrix(M.getValuesCSR()[::-1], shape=M.getSize())
+
+        a, b = csr(s.A), csr(full)
+        a.eliminate_zeros()
+        b.eliminate_zeros()
+        assert a.nnz == b.nnz > 0
+        assert (a != b).nnz == 0
+        full.destroy()
 
 
 def test_reuse_can_be_switched_off():

@@ -177,6 +177,7 @@ class Poromechanics:
         self.model = self.mech.model
         with timer.phase("flow_setup"):
             self.flow = problem_from_scene(scene, fm)
+            self.flow.solver.lagged = True  # the aperture changes the matrix a little per g
         self.accepted = FlowState(self.flow)
         self.biot = scene.material.biot
         self.porosity0 = scene.flow.porosity
@@ -415,6 +416,7 @@ class Poromechanics:
         # finite differences of g need u to respond to tiny changes of p: the contact Newton
         # takes at least one step even when its residual is already below the tolerance
         self._min_iterations = int(method == "newtonkrylov")
+        self.flow.solver.refresh()  # the Darcy preconditioner is lagged within an attempt only
         return self.fixed_point.attempt(self._guess(t), fallback)
 
     def _record(self, reason: int, seconds: float) -> dict:

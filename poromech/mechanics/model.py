@@ -134,6 +134,9 @@ class MechanicsModel:
         unknowns: ``[u, λ?, averages?]`` in block order.
         F: Compiled residual blocks.
         J: Compiled Jacobian blocks (None entries for zero blocks).
+        J_split: ``J`` as ``(bulk, rest)`` when it has contact terms: ``bulk`` the elastic
+            stiffness (cell integrals of the displacement block, a function of ``E`` and ``ν``
+            only), ``rest`` the blocks of ``J`` without it; None for a linear problem.
         bcs: Dirichlet conditions on ``V``.
         linear: True when no term depends nonlinearly on the unknowns (open fractures).
     """
@@ -146,6 +149,7 @@ class MechanicsModel:
     unknowns: list[fem.Function] = field(init=False)
     F: list[fem.Form] = field(init=False)
     J: list[list[fem.Form | None]] = field(init=False)
+    J_split: tuple[fem.Form, list[list[fem.Form | None]]] | None = field(init=False)
     bcs: list[fem.DirichletBC] = field(init=False)
     linear: bool = field(init=False)
 
@@ -567,6 +571,7 @@ class MechanicsModel:
         dG = fracture_measure(fm)(FRACTURE_TAG)
         self.dG = dG
         residuals = [F0]
+        fracture_terms = None
         if self.has_fractures:
             fracture_terms = cforms.displacement_residual(
                 self.kinematics, c, self.u, v, dG, _plus(self.lam), _plus(self.avg)
@@ -590,11 +595,24 @@ class MechanicsModel:
             )
         self.linear = not (c.active and self.has_fractures)
         jac = [[_derivative(Fi, uj) for uj in self.unknowns] for Fi in residuals]
+        rest = None
+        if not self.linear:
+            # the Jacobian as bulk elasticity + fracture terms: only the latter change with the
+            # iterate (the displacement block has none with multipliers)
+            rest = [list(row) for row in jac]
+            rest[0][0] = None if fracture_terms is None else _derivative(fracture_terms, self.u)
         em = self.entity_maps or None
         self.F = [fem.form(Fi, entity_maps=em) for Fi in residuals]
         self._div_form = self._divergence_form(dx) if self.pressures is not None else None
         self.J = [[fem.form(a, entity_maps=em) if a is not None else None for a in row]
                   for row in jac]
+        self.J_split = None
+        if rest is not None:
+            self.J_split = (
+                fem.form(_derivative(F0, self.u)),
+                [[fem.form(a, entity_maps=em) if a is not None else None for a in row]
+                 for row in rest],
+            )
         self._build_diagnostics()
 
     def _build_diagnostics(self) -> None:

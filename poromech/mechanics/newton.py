@@ -52,7 +52,9 @@ import dolfinx_solver  # noqa: F401
 
 import dolfinx
 import numpy as np
+from dolfinx import cpp as _cpp
 from dolfinx import fem
+from dolfinx.fem import pack_coefficients, pack_constants
 from dolfinx.fem.petsc import assemble_residual, assign, create_matrix, create_vector
 from mpi4py import MPI
 from petsc4py import PETSc
@@ -157,6 +159,13 @@ class SemiSmoothNewton:
         constant_jacobian: The Jacobian never changes (a linear problem whose coefficients are
             constant in time: no contact conditions): with ``reuse_jacobian`` it is assembled
             once, at the first Newton iteration of the first solve.
+        constant_bulk: ``J`` as ``(bulk, rest)``: ``bulk`` the displacement block's part that
+            never changes (the elastic stiffness, whose coefficients are constant in time),
+            ``rest`` the blocks of ``J`` without it. With ``reuse_jacobian`` the bulk is
+            assembled once into a matrix of the Jacobian's pattern, and each Jacobian is that
+            matrix's copy with ``rest`` added: the same sums in the same order as assembling
+            ``J``, at the cost of the contact terms only (the bulk was 70 % of a P1 and 75 % of
+            a P2 Jacobian's assembly on the 3D fault scene).
         modes: Computes the rigid-body modes of a displacement-only system
             (:func:`~poromech.mechanics.linear.rigid_body_modes`); called when the options
             configure a Krylov solve, whose matrix then carries them as near-nullspace.
@@ -192,6 +201,7 @@ class SemiSmoothNewton:
         states: Callable[[], np.ndarray] | None = None,
         states_determine_jacobian: bool = False,
         constant_jacobian: bool = False,
+        constant_bulk: tuple[fem.Form, Sequence[Sequence[fem.Form | None]]] | None = None,
         modes: Callable[[], np.ndarray] | None = None,
         eliminate_faces: bool = False,
         inexact: bool = False,
@@ -212,6 +222,9 @@ class SemiSmoothNewton:
         self.states_determine_jacobian = states_determine_jacobian
         self.constant_jacobian = constant_jacobian
         self._jacobian_assembled = False  # the matrix holds an assembled Jacobian
+        self._bulk = constant_bulk if reuse_jacobian else None
+        self._K: PETSc.Mat | None = None  # the assembled bulk (constant_bulk)
+        self._index_sets = None  # local index sets of the blocks (constant_bulk)
         self.reference_norm = 0.0
         self._min_iterations = 0
         self._last_states = None  # active set of the current iterate
@@ -277,8 +290,9 @@ class SemiSmoothNewton:
         if self._step is not None:
             self._step.free()
         self.linear.destroy()
-        for obj in (self.snes, self.A, self.b, self.x, self._cache_x, self._cache_f):
-            obj.destroy()
+        for obj in (self.snes, self.A, self.b, self.x, self._cache_x, self._cache_f, self._K):
+            if obj is not None:
+                obj.destroy()
 
     # -- callbacks --------------------------------------------------------------------------
     def _residual(self, snes, x, b) -> None:
@@ -317,13 +331,61 @@ class SemiSmoothNewton:
         t0 = time.perf_counter()
         dolfinx.la.petsc._ghost_update(x, PETSc.InsertMode.INSERT, PETSc.ScatterMode.FORWARD)
         assign(x, self.u)
-        A.zeroEntries()
-        dolfinx.fem.petsc.assemble_matrix(A, self.J, self.bcs, diag=1.0)
-        A.assemble()
+        if self._bulk is None or self._K is None:
+            A.zeroEntries()
+            dolfinx.fem.petsc.assemble_matrix(A, self.J, self.bcs, diag=1.0)
+            A.assemble()
+            if self._bulk is not None:  # the Jacobian's pattern is now final
+                self._K = self._assemble_bulk(A)
+        else:
+            self._K.copy(A, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+            self._assemble_blocks(A, self._bulk[1])
+            A.assemble()
         self._jacobian_states = None if self._last_states is None else self._last_states.copy()
         self.linear.assembled(self._jacobian_states)
         self._jacobian_assembled = True
         self.record.time_assembly += time.perf_counter() - t0
+
+    def _assemble_bulk(self, A: PETSc.Mat) -> PETSc.Mat:
+        """The constant bulk in a matrix of ``A``'s pattern (Dirichlet rows: 1 on the diagonal).
+
+        ``A`` must hold an assembled Jacobian: an entry of the pattern that no form sets before
+        the first final assembly is dropped from the matrix.
+        """
+        K = A.duplicate(copy=False)
+        K.zeroEntries()
+        n = len(self.u)
+        self._assemble_blocks(K, [[self._bulk[0] if i == j == 0 else None for j in range(n)]
+                                  for i in range(n)])
+        K.assemble()
+        return K
+
+    def _assemble_blocks(self, A: PETSc.Mat, forms: Sequence[Sequence[fem.Form | None]]) -> None:
+        """Add ``forms`` to ``A`` by blocks, without Dirichlet rows and columns (not finalised).
+
+        The diagonal of the Dirichlet rows is set to 1 in the diagonal blocks of a form. What
+        DOLFINx does for blocked forms, without its refusal of a diagonal block with no
+        form (the displacement block of ``rest`` with multipliers; the rows of ``bulk``).
+        """
+        if self._index_sets is None:
+            maps = [(f.function_space.dofmap.index_map, f.function_space.dofmap.index_map_bs)
+                    for f in self.u]
+            self._index_sets = _cpp.la.petsc.create_index_sets(maps)
+        rows = self._index_sets
+        bcs = [bc._cpp_object for bc in self.bcs]
+        blocks = [(i, j, a) for i, row in enumerate(forms) for j, a in enumerate(row)
+                  if a is not None]
+        for i, j, a in blocks:
+            sub = A.getLocalSubMatrix(rows[i], rows[j])
+            _cpp.fem.petsc.assemble_matrix(sub, a._cpp_object, pack_constants(a),
+                                           pack_coefficients(a), bcs, True)
+            A.restoreLocalSubMatrix(rows[i], rows[j], sub)
+        A.assemble(PETSc.Mat.AssemblyType.FLUSH)
+        for i, j, a in blocks:
+            if i == j and a.function_spaces[0] is a.function_spaces[1]:
+                sub = A.getLocalSubMatrix(rows[i], rows[j])
+                _cpp.fem.petsc.insert_diagonal(sub, a.function_spaces[0], bcs, 1.0)
+                A.restoreLocalSubMatrix(rows[i], rows[j], sub)
 
     def _same_states(self, reference) -> bool:
         """Whether the current active set equals ``reference`` on every rank (collective)."""

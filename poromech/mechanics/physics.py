@@ -179,6 +179,7 @@ class MechanicsPhysics:
                 states=model.active_set if model.faces is not None else None,
                 states_determine_jacobian=constant and model.params.piecewise_affine,
                 constant_jacobian=constant and model.linear,
+                constant_bulk=model.J_split if constant else None,
                 modes=(lambda: rigid_body_modes(model.V)) if (len(model.unknowns) == 1
                                                                or eliminate) else None,
                 eliminate_faces=eliminate,
