@@ -142,11 +142,14 @@ def test_injection3d_opens_closes_and_conserves_mass(tmp_path):
                                        abs=1e-12 * dt * abs(mb["sources"]) + 1e-18)
 
 
-def test_restart_reproduces_the_uninterrupted_run_3d(tmp_path):
+@pytest.mark.parametrize("darcy", ["direct", "iterative"])
+def test_restart_reproduces_the_uninterrupted_run_3d(tmp_path, darcy):
     """The injected disc, four steps (it opens in the second): a run stopped by SIGTERM after
     its second step and continued with ``restart`` gives the uninterrupted run's contact
-    states, apertures, pressures, displacement and fixed-point work."""
-    scene = load_scene(INJECTION3D, ["time.final=80", "time.steps=4"])
+    states, apertures, pressures, displacement and fixed-point work, with the direct Darcy
+    solver and with the iterative one, whose AMG is kept across the ``g`` of a step."""
+    scene = load_scene(INJECTION3D, ["time.final=80", "time.steps=4",
+                                     f"flow.linear_solver={darcy}"])
     full = run_scene(scene, tmp_path / "full")
 
     def terminate_after_second_step(physics):
