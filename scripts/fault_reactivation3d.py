@@ -260,6 +260,7 @@ def errors(reference: str) -> list[dict]:
 def report(rows: list[dict], reference: str, scene) -> None:
     """The Markdown table and the figures."""
     import matplotlib
+    import matplotlib.ticker
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -299,8 +300,8 @@ def report(rows: list[dict], reference: str, scene) -> None:
         style = {"coarse": ":", "medium": "--", "fine": "-", "xfine": "-."}[row["level"]]
         label = f"{row['variant']} {row['level']}" + (f" ({row['ranks']} ranks)"
                                                       if row["ranks"] != 1 else "")
-        ax[0].plot(h["time"] / 3600, 1e3 * h["slip"], style, label=label)
-        color = ax[0].lines[-1].get_color()
+        color = f"C{list(VARIANTS).index(row['variant'])}"  # colour: variant; style: level
+        ax[0].plot(h["time"] / 3600, 1e3 * h["slip"], style, color=color, label=label)
         ax[1].plot(h["time"] / 3600, 1e6 * h["aperture"], style, color=color)
         ax[2].plot(h["time"] / 3600, (h["pressure"] - h["pressure"][0]) / 1e6, style,
                    color=color)
@@ -312,6 +313,7 @@ def report(rows: list[dict], reference: str, scene) -> None:
     ax[1].set(xlabel="time (h)", ylabel="mean aperture of the fault (µm)")
     ax[2].set(xlabel="time (h)", ylabel="overpressure at injection (MPa)")
     ax[3].set(xlabel="wall time (s)", ylabel="mean-slip error")
+    ax[3].xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
     ax[0].legend(fontsize=6)
     for a in ax:
         a.grid(True, alpha=0.3)
@@ -334,7 +336,8 @@ def picture(outdir: Path, scene) -> None:
         grid = pv.PolyData(s.points, cells)
         if opaque:
             grid.cell_data["slip (mm)"] = slip[mask]
-            p.add_mesh(grid, scalars="slip (mm)", cmap="inferno", show_edges=True,
+            p.add_mesh(grid, scalars="slip (mm)", cmap="inferno",
+                       show_edges=bool(mask.sum() < 4000),  # edges hide a fine mesh's colours
                        edge_color="#555555", line_width=0.3)
         else:
             p.add_mesh(grid, color="lightgrey", opacity=0.35)
