@@ -60,18 +60,28 @@ def exact(A, b):
     return x.getArray().copy()
 
 
-def test_lagged_preconditioner_kept_for_small_changes_and_solves_to_tolerance(system):
-    A, b, scale = system
+def lagged_solver(A, b):
+    """A lagged iterative solver after its first solve: (solver, x, first record)."""
     solver = LinearSolver(A, "lagtest_", "iterative", {"ksp_initial_guess_nonzero": False}, 3)
     solver.lagged = True
     x = b.duplicate()
-    first = solver.solve(b, x)
+    return solver, x, solver.solve(b, x)
+
+
+def resolve(solver, A, scale, b, x):
+    """New matrix values from ``scale``, solved from a zero guess; the record."""
+    update(A, scale)
+    solver.operator_changed()
+    x.set(0.0)
+    return solver.solve(b, x)
+
+
+def test_lagged_preconditioner_kept_for_small_changes_and_solves_to_tolerance(system):
+    A, b, scale = system
+    solver, x, first = lagged_solver(A, b)
     assert not first.lagged and first.setup_seconds > 0
     for k in range(3):  # an aperture-like change: a few % of the conductivities
-        update(A, scale * (1.0 + 0.02 * (k + 1)))
-        solver.operator_changed()
-        x.set(0.0)
-        rec = solver.solve(b, x)
+        rec = resolve(solver, A, scale * (1.0 + 0.02 * (k + 1)), b, x)
         assert rec.lagged and rec.setup_seconds == 0.0
         assert rec.iterations <= LAG_GROWTH * first.iterations + LAG_SLACK
         ref = exact(A, b)
@@ -84,17 +94,11 @@ def test_lagged_preconditioner_kept_for_small_changes_and_solves_to_tolerance(sy
 
 def test_lagged_preconditioner_rebuilt_when_it_no_longer_pays(system):
     A, b, scale = system
-    solver = LinearSolver(A, "lagtest_", "iterative", {"ksp_initial_guess_nonzero": False}, 3)
-    solver.lagged = True
-    x = b.duplicate()
-    first = solver.solve(b, x)
+    solver, x, first = lagged_solver(A, b)
     # conductivities up by 10⁴ in a slab of cells: the old hierarchy no longer fits
     big = scale.copy().reshape(N, N, N)
     big[:, :, : N // 2] *= 1e4
-    update(A, big.ravel())
-    solver.operator_changed()
-    x.set(0.0)
-    rec = solver.solve(b, x)
+    rec = resolve(solver, A, big.ravel(), b, x)
     ref = exact(A, b)
     assert np.linalg.norm(x.getArray() - ref) <= 1e-8 * np.linalg.norm(ref)
     if rec.lagged:  # converged, slowly: the next change gets a new set-up
@@ -112,9 +116,7 @@ def test_a_direct_solver_is_never_lagged(system):
     solver.lagged = True
     x = b.duplicate()
     solver.solve(b, x)
-    update(A, scale * 1.5)
-    solver.operator_changed()
-    rec = solver.solve(b, x)
+    rec = resolve(solver, A, scale * 1.5, b, x)
     assert not rec.lagged
     ref = exact(A, b)
     assert np.linalg.norm(x.getArray() - ref) <= 1e-12 * np.linalg.norm(ref)
