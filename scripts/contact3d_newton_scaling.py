@@ -423,12 +423,14 @@ def main() -> None:
                                        jobs(args.quick, args.only)) for r in rows]
     command = "python scripts/contact3d_newton_scaling.py " + shlex.join(sys.argv[1:])
     stamps = [f"`{command.strip()}` ({datetime.date.today()})"]
+
+    def key(r):
+        return r["case"], int(r["degree"]), float(r["scale"]), float(r["beta_factor"])
+
+    # a level and a β⁰ level can share a mesh: its default-β⁰ rows are solved twice, kept once
+    rows = list({key(r): r for r in rows}.values())
     if args.append:
         old_stamps, old = read_rows(OUT / "newton_scaling.csv")
-
-        def key(r):
-            return r["case"], int(r["degree"]), float(r["scale"]), float(r["beta_factor"])
-
         done = {key(r) for r in rows}
         rows = [r for r in old if key(r) not in done] + rows
         stamps = old_stamps + stamps

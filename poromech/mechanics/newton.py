@@ -23,6 +23,15 @@ for residuals that are piecewise affine in the unknowns (2D contact with Coulomb
   of the Jacobi-preconditioned stiffness), so a few dofs at corners and tips, where ``β/h``
   makes residuals large, do not dictate the step of the whole domain, and every trial of every
   iteration is measured with the same merit.
+* **A one-sided Jacobian when the ray does not descend (3D).** When no trial satisfies Armijo, some
+  contact points sit at (or next to) a switch, and the Jacobian of their current branch is not
+  the derivative along the Newton ray. The Jacobian is then assembled a short step ahead,
+  ``x - 2⁻ˢY`` (``s`` the samples), where those points are on the branch the ray enters; its
+  direction is solved from the same residual and searched the same way, and taken when it
+  satisfies Armijo. Face-mean formulations in 3D otherwise cycle through the same three active
+  sets for 20 iterations (docs/mechanics3d.md, "Newton iterations"). One assembly and one linear
+  solve, only in the iterations that need it (``NewtonRecord.one_sided``). Off in 2D
+  (``one_sided``), where it cost Newton iterations on the coupled six-fracture scene.
 * **Watchdog.** When no trial decreases the residual, the best trial is taken anyway (the
   active set usually changes and Newton recovers); five consecutive such steps end the solve
   with ``DIVERGED_LINE_SEARCH``, and a ray on which every residual is NaN or infinite with
@@ -108,6 +117,7 @@ class NewtonRecord:
     time_linear: float = 0.0
     time_preconditioner: float = 0.0
     linear_failure: str = ""
+    one_sided: int = 0
 
     def as_dict(self) -> dict:
         """JSON-ready summary."""
@@ -123,12 +133,15 @@ class LineSearchParameters:
         samples: Halvings ``α = 2⁻ʲ`` sampled when the full step is rejected.
         refinements: Golden-section steps refining the best sample.
         max_watchdog: Consecutive non-decreasing steps allowed before giving up.
+        one_sided: Whether a ray without an Armijo step is searched again with the Jacobian
+            a short step ahead (:meth:`_NewtonStep._one_sided`).
     """
 
     armijo: float = 1e-4
     samples: int = 6
     refinements: int = 3
     max_watchdog: int = 5
+    one_sided: bool = False
 
 
 class SemiSmoothNewton:
@@ -176,6 +189,8 @@ class SemiSmoothNewton:
             (:func:`~poromech.mechanics.linear.forcing_term`), and with ``reuse_jacobian`` keeps
             its preconditioner across Jacobians while that pays (``lagged``); False for a linear
             problem, solved in one iteration to the options' ``ksp_rtol``.
+        one_sided: A ray without an Armijo step is searched again with the Jacobian a short
+            step ahead (:class:`LineSearchParameters`; the 3D contact laws).
 
     Attributes:
         A: The Jacobian matrix.
@@ -205,6 +220,7 @@ class SemiSmoothNewton:
         modes: Callable[[], np.ndarray] | None = None,
         eliminate_faces: bool = False,
         inexact: bool = False,
+        one_sided: bool = False,
     ):
         self.F, self.J, self.u, self.bcs = list(F), [list(r) for r in J], list(unknowns), list(bcs)
         self.comm = self.u[0].function_space.mesh.comm
@@ -216,7 +232,7 @@ class SemiSmoothNewton:
         self._cache_f = self.b.duplicate()
         self._cache_valid = False
         self.line_search = line_search
-        self.ls = LineSearchParameters()
+        self.ls = LineSearchParameters(one_sided=one_sided)
         self.reuse_jacobian = reuse_jacobian
         self.states = states
         self.states_determine_jacobian = states_determine_jacobian
@@ -328,6 +344,10 @@ class SemiSmoothNewton:
                                         and self._same_states(self._jacobian_states))):
             self.record.jacobian_reuses += 1
             return
+        self._assemble_jacobian(x, A, self._last_states)
+
+    def _assemble_jacobian(self, x: PETSc.Vec, A: PETSc.Mat, states: np.ndarray | None) -> None:
+        """Assemble the Jacobian at ``x`` into ``A``; ``states`` are the active set at ``x``."""
         t0 = time.perf_counter()
         dolfinx.la.petsc._ghost_update(x, PETSc.InsertMode.INSERT, PETSc.ScatterMode.FORWARD)
         assign(x, self.u)
@@ -341,7 +361,7 @@ class SemiSmoothNewton:
             self._K.copy(A, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
             self._assemble_blocks(A, self._bulk[1])
             A.assemble()
-        self._jacobian_states = None if self._last_states is None else self._last_states.copy()
+        self._jacobian_states = None if states is None else states.copy()
         self.linear.assembled(self._jacobian_states)
         self._jacobian_assembled = True
         self.record.time_assembly += time.perf_counter() - t0
@@ -517,6 +537,7 @@ class _NewtonStep:
         self.s = solver
         self._trial = solver.x.duplicate()
         self._trial_f = solver.b.duplicate()
+        self._direction = solver.x.duplicate()  # the one-sided direction
         # merit scaling of the line search, displacement-only systems (_set_scale)
         single = len(solver.u) == 1
         self.scale = solver.b.duplicate() if single else None
@@ -524,16 +545,20 @@ class _NewtonStep:
         self.watchdog = 0
         self.forced_reason = None
         self._scale_set = False
+        self._one_sided_run = 0  # consecutive steps taken along one-sided directions
+        self._one_sided_off = False
 
     def reset(self) -> None:
         """Before a solve: no watchdog count, no forced reason, the merit scale to be set."""
         self.watchdog = 0
         self.forced_reason = None
         self._scale_set = False
+        self._one_sided_run = 0
+        self._one_sided_off = False
 
     def free(self) -> None:
         """Free the work vectors (``destroy`` is PETSc's hook on this context: not used)."""
-        for v in (self._trial, self._trial_f, self.scale, self._scaled):
+        for v in (self._trial, self._trial_f, self._direction, self.scale, self._scaled):
             if v is not None:
                 v.destroy()
 
@@ -593,9 +618,55 @@ class _NewtonStep:
         self.scale.setArray(1.0 / np.sqrt(d))
 
     def _line_search(self, snes, X, F, Y) -> float:
-        """The step length ``α`` (0 when the search gives up)."""
+        """The step length ``α`` (0 when the search gives up); ``Y`` may be replaced."""
         self._set_scale()
-        return self._choose_step(snes, X, F, Y, self._merit(F))[0]
+        f0 = self._merit(F)
+        before = (self.watchdog, self.forced_reason)
+        alpha, fa = self._choose_step(snes, X, F, Y, f0)
+        nan = PETSc.SNES.ConvergedReason.DIVERGED_FUNCTION_NANORINF
+        if (self.watchdog == 0 or not self.s.ls.one_sided or self._one_sided_off
+                or self.forced_reason == nan):
+            self._one_sided_run = 0
+            return alpha
+        after = (self.watchdog, self.forced_reason)
+        Z = self._one_sided(snes, X, F, Y)
+        if Z is not None:
+            self.watchdog, self.forced_reason = before
+            beta, fb = self._choose_step(snes, X, F, Z, f0)
+            if self.watchdog == 0:  # Armijo
+                Z.copy(Y)
+                self._one_sided_run += 1
+                # two in a row: no switch is being crossed, the search creeps (short steps on
+                # a fixed active set); the plain watchdog does better there
+                self._one_sided_off = self._one_sided_run >= 2
+                return beta
+        self._one_sided_run = 0
+        self.watchdog, self.forced_reason = after
+        return alpha
+
+    def _one_sided(self, snes, X, F, Y) -> PETSc.Vec | None:
+        """The direction of the Jacobian at ``X - 2⁻ˢY`` for the residual at ``X`` (None if its
+        linear solve fails).
+
+        The points at a switch along the ray are there on the branch the ray enters (a one-sided
+        element of the generalized Jacobian); the matrix is kept as the assembled Jacobian, with
+        that point's active set.
+        """
+        s = self.s
+        self._trial.waxpy(-(2.0 ** -s.ls.samples), Y, X)
+        dolfinx.la.petsc._ghost_update(self._trial, PETSc.InsertMode.INSERT,
+                                       PETSc.ScatterMode.FORWARD)
+        assign(self._trial, s.u)
+        states = s.states() if s.states is not None else None
+        s._assemble_jacobian(self._trial, s.A, states)
+        s.record.one_sided += 1
+        t0 = time.perf_counter()
+        solved = s.linear.solve(F, self._direction, s.record, states)
+        s.record.time_linear += time.perf_counter() - t0
+        if not solved:
+            s.linear.forget()
+            return None
+        return self._direction
 
     def _choose_step(self, snes, X, F, Y, f0: float) -> tuple[float, float]:
         """Step length and the residual norm it gives (0 when the search gives up).
