@@ -645,12 +645,11 @@ class _NewtonStep:
         return alpha
 
     def _one_sided(self, snes, X, F, Y) -> PETSc.Vec | None:
-        """The direction of the Jacobian at ``X - 2⁻ˢY`` for the residual at ``X`` (None if its
-        linear solve fails).
+        """The direction of the Jacobian at ``X - 2⁻ˢY`` for the residual at ``X``, or None.
 
-        The points at a switch along the ray are there on the branch the ray enters (a one-sided
-        element of the generalized Jacobian); the matrix is kept as the assembled Jacobian, with
-        that point's active set.
+        None when its linear solve fails. The points at a switch along the ray are there on the
+        branch the ray enters (a one-sided element of the generalized Jacobian); the matrix is
+        kept as the assembled Jacobian, with that point's active set.
         """
         s = self.s
         self._trial.waxpy(-(2.0 ** -s.ls.samples), Y, X)
