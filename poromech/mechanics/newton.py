@@ -30,7 +30,8 @@ for residuals that are piecewise affine in the unknowns (2D contact with Coulomb
   direction is solved from the same residual and searched the same way, and taken when it
   satisfies Armijo. Face-mean formulations in 3D otherwise cycle through the same three active
   sets for 20 iterations (docs/mechanics3d.md, "Newton iterations"). One assembly and one linear
-  solve, only in the iterations that need it (``NewtonRecord.one_sided``). Off in 2D
+  solve, only in the iterations that need it (``NewtonRecord.one_sided``); after two such
+  steps in a row it is off for the rest of the solve. Off in 2D
   (``one_sided``), where it cost Newton iterations on the coupled six-fracture scene.
 * **Watchdog.** When no trial decreases the residual, the best trial is taken anyway (the
   active set usually changes and Newton recovers); five consecutive such steps end the solve
@@ -637,7 +638,7 @@ class _NewtonStep:
                 Z.copy(Y)
                 self._one_sided_run += 1
                 # two in a row: no switch is being crossed, the search creeps (short steps on
-                # a fixed active set); the plain watchdog does better there
+                # a fixed active set), and each one-sided direction only adds a factorization
                 self._one_sided_off = self._one_sided_run >= 2
                 return beta
         self._one_sided_run = 0
