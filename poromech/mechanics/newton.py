@@ -623,7 +623,7 @@ class _NewtonStep:
         self._set_scale()
         f0 = self._merit(F)
         before = (self.watchdog, self.forced_reason)
-        alpha, fa = self._choose_step(snes, X, F, Y, f0)
+        alpha = self._choose_step(snes, X, F, Y, f0)[0]
         nan = PETSc.SNES.ConvergedReason.DIVERGED_FUNCTION_NANORINF
         if (self.watchdog == 0 or not self.s.ls.one_sided or self._one_sided_off
                 or self.forced_reason == nan):
@@ -633,7 +633,7 @@ class _NewtonStep:
         Z = self._one_sided(snes, X, F, Y)
         if Z is not None:
             self.watchdog, self.forced_reason = before
-            beta, fb = self._choose_step(snes, X, F, Z, f0)
+            beta = self._choose_step(snes, X, F, Z, f0)[0]
             if self.watchdog == 0:  # Armijo
                 Z.copy(Y)
                 self._one_sided_run += 1
