@@ -3,11 +3,13 @@
     python scripts/fault_reactivation3d.py            # three levels, nitsche and stabilized_mixed
     python scripts/fault_reactivation3d.py --levels coarse medium --formulations nitsche-P1
     python scripts/fault_reactivation3d.py --levels xfine --formulations nitsche-P2 --ranks 2
+    python scripts/fault_reactivation3d.py --levels local4 local2 local1 --formulations nitsche-P2
     python scripts/fault_reactivation3d.py --report              # tables and figures only
 
 Runs ``configs/fault_reactivation3d.yaml`` (a normal fault at 2 km depth crossed by a
 conjugate fault, with a joint ending on it; in-situ stress, gravity, hydrostatic pressure;
-injection into the fault's centre, then shut-in) on three meshes with every contact
+injection into the fault's centre, then shut-in) on uniform meshes (:data:`LEVELS`) and on
+meshes refined around the injection point (:data:`ZONES`) with every contact
 formulation, one run at a time, and records per run (appending to the CSV as it goes, so an
 interrupted study keeps its finished rows):
 
@@ -25,9 +27,11 @@ interrupted study keeps its finished rows):
   factorizations, the constant bulk stiffness, the lagged AMG of the Darcy solve);
 * the error of the mean-slip and pressure histories (relative L² over the output times)
   against the reference run (``--reference``; by default the most accurate run there is:
-  ``nitsche`` P2 on the ``xfine`` mesh, 1M displacement unknowns, when it has run, else
-  ``stabilized_mixed`` P1 on the fine mesh; ``mixed`` P2, the one formulation with exact
-  stick, costs too much on the fine meshes here).
+  ``nitsche`` P2 on the ``local1`` mesh, refined to 1.2 m on the fractures around the
+  injection point (``mesh.zones``, :data:`ZONES`), when it has run, else ``nitsche`` P2 on the
+  uniform ``xfine`` mesh (1M displacement unknowns), else ``stabilized_mixed`` P1 on the fine
+  mesh; ``mixed`` P2, the one formulation with exact stick, costs too much on the fine meshes
+  here).
 
 Writes docs/poromechanics/fault_reactivation3d.{csv,md,png} and
 docs/images/fault_reactivation3d.png (slip on the faults at shut-in).
@@ -65,6 +69,31 @@ RUNS = ROOT / "results" / "fault_reactivation3d_study"
 #: the performance target with P2 (232k tetrahedra, 1.02M P2 displacement unknowns).
 LEVELS = {"coarse": (60.0, 22.0), "medium": (40.0, 15.0), "fine": (28.0, 10.0),
           "xfine": (15.0, 5.0)}
+#: Locally refined levels (``mesh.zones``): the ``medium`` mesh with, around the injection
+#: point, ``size`` on the fractures within 45 m and ``3 size + 2`` m in the whole ball of 60 m,
+#: both growing over 40 m. The slipping patch (32 m radius at shut-in) and the pressure's
+#: leak-off layer (~45 m) lie inside: ``local1`` has 12k fault faces of ~1.2 m there.
+ZONES = {"local4": 4.0, "local2": 2.0, "local1": 1.0}
+CENTRE = (200.0, 200.0, -2000.0)
+#: Line style and error-plot label of each level.
+STYLES = {"coarse": ":", "medium": "--", "fine": "-", "xfine": "-.", "local4": (0, (1, 1)),
+          "local2": (0, (5, 1)), "local1": (0, (3, 1, 1, 1))}
+MARK = {"coarse": "c", "medium": "m", "fine": "f", "xfine": "x", "local4": "L4", "local2": "L2",
+        "local1": "L1"}
+
+
+def mesh_overrides(level: str) -> list[str]:
+    """The ``--set`` options of a mesh level."""
+    if level in LEVELS:
+        size, fsize = LEVELS[level]
+        return [f"mesh.size={size}", f"mesh.fracture_size={fsize}"]
+    h = ZONES[level]
+    c = list(CENTRE)
+    zones = (f"[{{center: {c}, radius: 45, size: {h}, transition: 40}}, "
+             f"{{center: {c}, radius: 60, size: {3 * h + 2}, transition: 40, region: ball}}]")
+    return [*mesh_overrides("medium"), f"mesh.zones={zones}"]
+
+
 #: Formulation and degree of each run (mixed P1 is not inf-sup stable in 3D).
 VARIANTS = {
     "nitsche-P1": ("nitsche", 1),
@@ -74,7 +103,7 @@ VARIANTS = {
     "mixed-P2": ("mixed", 2),
 }
 #: The reference of the errors, the first of these that ran (``--reference`` overrides).
-REFERENCES = ("nitsche-P2@xfine", "stabilized_mixed-P1@fine")
+REFERENCES = ("nitsche-P2@local1", "nitsche-P2@xfine", "stabilized_mixed-P1@fine")
 INJECTION_RADIUS = 30.0
 COLUMNS = ["variant", "level", "ranks", "dofs", "flow_unknowns", "steps", "wall_s", "peak_gb",
            "g_per_step", "newton", "krylov", "darcy_solves", "darcy_cg", "elastic_s", "darcy_s",
@@ -134,11 +163,9 @@ def _command(scene: Path, out: Path, ranks: int, overrides: list[str]) -> list[s
 def run_one(variant: str, level: str, ranks: int) -> tuple[Path, dict, float, float]:
     """Run one case through the command line (as a user does); outputs, summary, wall, GB."""
     formulation, degree = VARIANTS[variant]
-    size, fsize = LEVELS[level]
     out = RUNS / f"{variant}-{level}-n{ranks}"
     wall, peak, code = _execute(_command(SCENE, out, ranks, [
-        f"contact.formulation={formulation}", f"degree={degree}", f"mesh.size={size}",
-        f"mesh.fracture_size={fsize}"]))
+        f"contact.formulation={formulation}", f"degree={degree}", *mesh_overrides(level)]))
     summary = json.loads((out / "summary.json").read_text()) if (out / "summary.json").exists() \
         else {"status": f"failed ({code})"}
     return out, summary, wall, peak
@@ -149,7 +176,6 @@ def unit_solves(level: str, degree: int, ranks: int) -> tuple[float, float]:
     import yaml
 
     raw = yaml.safe_load(SCENE.read_text())
-    size, fsize = LEVELS[level]
     one_step = {"final": raw["time"]["final"] / raw["time"]["steps"], "steps": 1}
     mech = {**{k: v for k, v in raw.items() if k not in ("flow", "probes")},
             "physics": "mechanics", "contact": {"formulation": "none"}, "degree": degree,
@@ -163,8 +189,7 @@ def unit_solves(level: str, degree: int, ranks: int) -> tuple[float, float]:
         scene.parent.mkdir(parents=True, exist_ok=True)
         scene.write_text(yaml.safe_dump(data))
         out = RUNS / f"unit-{name}-{level}-P{degree}-n{ranks}"
-        _execute(_command(scene, out, ranks, [f"mesh.size={size}",
-                                              f"mesh.fracture_size={fsize}"]))
+        _execute(_command(scene, out, ranks, mesh_overrides(level)))
         summary = json.loads((out / "summary.json").read_text())
         if key is None:
             solve = summary["solves"][0]
@@ -297,18 +322,18 @@ def report(rows: list[dict], reference: str, scene) -> None:
         if (row["ranks"] != 1 and (row["variant"], row["level"]) in single) or not path.exists():
             continue
         h = np.load(path)
-        style = {"coarse": ":", "medium": "--", "fine": "-", "xfine": "-."}[row["level"]]
+        style = STYLES[row["level"]]
         label = f"{row['variant']} {row['level']}" + (f" ({row['ranks']} ranks)"
                                                       if row["ranks"] != 1 else "")
         color = f"C{list(VARIANTS).index(row['variant'])}"  # colour: variant; style: level
-        ax[0].plot(h["time"] / 3600, 1e3 * h["slip"], style, color=color, label=label)
-        ax[1].plot(h["time"] / 3600, 1e6 * h["aperture"], style, color=color)
-        ax[2].plot(h["time"] / 3600, (h["pressure"] - h["pressure"][0]) / 1e6, style,
+        ax[0].plot(h["time"] / 3600, 1e3 * h["slip"], ls=style, color=color, label=label)
+        ax[1].plot(h["time"] / 3600, 1e6 * h["aperture"], ls=style, color=color)
+        ax[2].plot(h["time"] / 3600, (h["pressure"] - h["pressure"][0]) / 1e6, ls=style,
                    color=color)
         # (a run that equals the reference to round-off has no point on the log axis)
         if row.get("slip_error") not in ("", None) and float(row["slip_error"]) > 1e-8:
             ax[3].loglog(float(row["wall_s"]), float(row["slip_error"]), "o", color=color)
-            ax[3].annotate(row["level"][0], (float(row["wall_s"]), float(row["slip_error"])))
+            ax[3].annotate(MARK[row["level"]], (float(row["wall_s"]), float(row["slip_error"])))
     ax[0].set(xlabel="time (h)", ylabel="mean slip on the fault (mm)")
     ax[1].set(xlabel="time (h)", ylabel="mean aperture of the fault (µm)")
     ax[2].set(xlabel="time (h)", ylabel="overpressure at injection (MPa)")
@@ -352,7 +377,7 @@ def picture(outdir: Path, scene) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--levels", nargs="+", default=["coarse", "medium", "fine"],
-                    choices=list(LEVELS))
+                    choices=[*LEVELS, *ZONES])
     ap.add_argument("--formulations", nargs="+", choices=list(VARIANTS),
                     default=["nitsche-P1", "stabilized_mixed-P1", "mean_nitsche-P1"])
     ap.add_argument("--ranks", type=int, default=1)

@@ -481,3 +481,29 @@ def test_fields_checked_at_mesh_points_under_mpi():
         """)
     a, b = result["messages"]
     assert a == b and "material.young" in a and "cell centre" in a
+
+
+def test_mesh_zones_checked_before_meshing(caplog):
+    """A zone centre with the wrong number of components, or a ball that misses the domain, is
+    refused in one line naming the key; a zone on the fractures of a scene without any, or of
+    a mesh file, is reported as without effect."""
+    from conftest import config_error
+
+    zone = {"center": [0.5, 0.5], "radius": 0.1, "size": 0.01}
+    raw = mechanics_scene(mesh={"size": 0.1, "zones": [{**zone, "center": [0.5, 0.5, 0.0]}]})
+    assert "'mesh.zones.0.center' has 3 components: a 2D vector has 2" in config_error(raw)
+    raw = mechanics_scene(mesh={"size": 0.1, "zones": [{**zone, "center": [2.5, 0.5]}]})
+    msg = config_error(raw)
+    assert "'mesh.zones.0.center' = [2.5, 0.5] is farther than its radius 0.1 m" in msg
+    raw = mechanics_scene(mesh={"size": 0.1, "zones": [{**zone, "region": "all"}]})
+    assert "'mesh.zones.0.region'" in config_error(raw) and "ball" in config_error(raw)
+    raw = mechanics_scene(mesh={"size": 0.1, "zones": [zone]})
+    raw["geometry"]["fractures"] = []
+    caplog.clear()
+    scene_from_dict(raw)
+    assert any("'mesh.zones.0.size' has no effect: the scene has no fractures for the zone"
+               in r.getMessage() for r in caplog.records)
+    raw["mesh"]["zones"][0]["region"] = "ball"
+    caplog.clear()
+    scene_from_dict(raw)
+    assert not any("zones" in r.getMessage() for r in caplog.records)

@@ -181,3 +181,41 @@ def test_parallel_dofs_and_partition_on_fracture():
     for k in (1, 2):
         assert result[f"P{k}"] == cracked_space(fm, k).dofmap.index_map.size_global
     assert result["cut_faces"] > 5
+
+
+def test_zones_2d():
+    """A zone on the fractures refines them in its disc only; a disc zone the whole disc."""
+    from poromech.scene.resources import estimate_cells
+
+    mesh = {"size": 0.1, "fracture_size": 0.05, "transition": 0.15}
+    centre = [0.5, 0.5]
+    counts = []
+    for zones in ([], [{"center": centre, "radius": 0.1, "size": 0.01}],
+                  [{"center": centre, "radius": 0.1, "size": 0.01, "region": "ball"}]):
+        scene = scene_from_dict(mechanics_scene(mesh={**mesh, "zones": zones}))
+        geo, sizes = scene_geometry(scene), mesh_sizes(scene)
+        a = generate_mesh(geo, sizes)
+        x, ff = a.x, a.fracture_facets
+        length = np.linalg.norm(x[ff[:, 1]] - x[ff[:, 0]], axis=1)
+        r = np.linalg.norm(x[ff].mean(axis=1) - centre, axis=1)
+        c = x[a.cells].mean(axis=1)
+        u, v = x[a.cells[:, 1]] - x[a.cells[:, 0]], x[a.cells[:, 2]] - x[a.cells[:, 0]]
+        area = 0.5 * np.abs(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0])
+        edge = np.sqrt(4 * area / np.sqrt(3))
+        # the rock in the disc, more than 0.05 from every fracture face midpoint
+        mid = x[ff].mean(axis=1)
+        far = np.min(np.linalg.norm(c[:, None] - mid[None], axis=2), axis=1) > 0.05
+        rock = edge[(np.linalg.norm(c - centre, axis=1) < 0.08) & far]
+        if zones:
+            assert length[r < 0.08].max() < 1.3 * 0.01
+        assert length[r > 0.4].mean() > 0.8 * 0.05
+        if zones and zones[0].get("region") == "ball":
+            assert rock.mean() < 1.3 * 0.01
+        elif zones:
+            assert rock.mean() > 2 * 0.01
+        est = estimate_cells(geo, sizes.size, sizes.fracture_size, sizes.tip_size,
+                             sizes.transition, 0, sizes.zones)
+        counts.append((len(a.cells), est))
+    ratios = [est / n for n, est in counts]
+    assert counts[1][0] > 1.3 * counts[0][0] and counts[2][0] > counts[1][0]
+    assert max(ratios) / min(ratios) < 1.25

@@ -752,3 +752,39 @@ def test_surfaces_refused_in_2d():
     raw = mechanics_scene()
     raw["geometry"]["surfaces"] = [{"polygon": [[0, 0, 0], [1, 0, 0], [1, 1, 0]]}]
     assert "'geometry.surfaces' is for a box (3D) only" in config_error(raw)
+
+
+def test_zones_refine_fractures_or_balls():
+    """A zone on the fractures refines the fracture in its ball only; a ball zone the whole
+    ball; the cell estimate follows both."""
+    from dataclasses import replace
+
+    from poromech.mesh.generate import SizeZone
+    from poromech.scene.resources import estimate_cells_3d
+
+    geo = BoxGeometry(UNIT, (rect("F", 2, 0.5, (0.1, 0.1), (0.9, 0.9)),))  # z = 0.5
+    base = MeshSizes(0.25, 0.1, 0.1, 0.25)
+    on_fracture = SizeZone((0.3, 0.3, 0.5), 0.15, 0.025, 0.25)
+    ball = SizeZone((0.7, 0.7, 0.22), 0.1, 0.04, 0.25, on_fractures=False)
+    sizes = replace(base, zones=(on_fracture, ball))
+    ar, rep = build_mesh_3d(geo, sizes)
+    x, ff = ar.x, ar.fracture_facets
+    h = np.sqrt(4 * _tri_area(x, ff) / np.sqrt(3))  # edge of the equilateral of that area
+    r = np.linalg.norm(x[ff].mean(axis=1) - on_fracture.center, axis=1)
+    assert h[r < 0.1].mean() < 1.4 * 0.025
+    assert h[r > 0.5].mean() > 0.07  # fracture_size away from the zone
+    c = x[ar.cells].mean(axis=1)
+    d = x[ar.cells[:, 1:]] - x[ar.cells[:, :1]]
+    volume = np.abs(np.einsum("ij,ij->i", d[:, 0], np.cross(d[:, 1], d[:, 2]))) / 6
+    edge = np.cbrt(6 * np.sqrt(2) * volume)  # edge of the regular tet of that volume
+    in_ball = np.linalg.norm(c - ball.center, axis=1) < 0.06
+    assert edge[in_ball].mean() < 1.4 * 0.04
+    # the rock in the fracture zone's ball, 0.2 from the fracture, is not refined to 0.025
+    above = (np.linalg.norm(c[:, :2] - 0.3, axis=1) < 0.1) & (np.abs(c[:, 2] - 0.5) > 0.2)
+    assert edge[above].mean() > 0.1
+    # the estimate is as close to gmsh's count with the zones as without them (the small box's
+    # boundary makes both low)
+    est = estimate_cells_3d(geo, 0.25, 0.1, 0.1, 0.25, 0, sizes.zones)
+    plain = estimate_cells_3d(geo, 0.25, 0.1, 0.1, 0.25, 0)
+    ratio = (est / rep.num_cells) / (plain / build_mesh_3d(geo, base)[1].num_cells)
+    assert 0.8 < ratio < 1.25

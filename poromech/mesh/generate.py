@@ -2,9 +2,10 @@
 
 The fractures are embedded in the domain with the OpenCASCADE ``fragment`` operation, which
 splits curves at their crossings (T and X junctions) and where they touch the boundary, so the
-mesh is conforming to the whole network. Sizes are controlled near the fractures and near their
-end points; a refinement level ``m`` then splits every triangle into four, ``m`` times, so that a
-family ``m = 0, 1, 2, ...`` has ``4^m`` times the cells and ``2^m`` times the fracture faces.
+mesh is conforming to the whole network. Sizes are controlled near the fractures, near their
+end points and in zones (balls, :class:`SizeZone`); a refinement level ``m`` then splits every
+triangle into four, ``m`` times, so that a family ``m = 0, 1, 2, ...`` has ``4^m`` times the
+cells and ``2^m`` times the fracture faces.
 """
 
 from __future__ import annotations
@@ -17,7 +18,28 @@ import numpy.typing as npt
 
 from poromech.geometry.plane import PlaneGeometry, arc_length_positions
 
-__all__ = ["MeshArrays", "MeshSizes", "generate_mesh", "gmsh_session", "threshold_field"]
+__all__ = ["MeshArrays", "MeshSizes", "SizeZone", "generate_mesh", "gmsh_session",
+           "threshold_field", "zone_fields"]
+
+
+@dataclass(frozen=True)
+class SizeZone:
+    """A ball of finer mesh.
+
+    Attributes:
+        center: Centre ``(x, y, z)`` (``z = 0`` in 2D).
+        radius: Radius of the ball.
+        size: Element size in it: on the fractures (``on_fractures``), or everywhere.
+        transition: Distance over which the size grows from ``size`` (beyond the ball, and
+            away from the fractures).
+        on_fractures: Whether only the fractures (and the rock around them) are refined.
+    """
+
+    center: tuple[float, float, float]
+    radius: float
+    size: float
+    transition: float
+    on_fractures: bool = True
 
 
 @dataclass(frozen=True)
@@ -30,6 +52,7 @@ class MeshSizes:
         tip_size: Size at fracture end points.
         transition: Distance over which the sizes blend into ``size``.
         refinement: Number of uniform refinements after generation.
+        zones: Balls of finer mesh.
     """
 
     size: float
@@ -37,6 +60,7 @@ class MeshSizes:
     tip_size: float
     transition: float
     refinement: int = 0
+    zones: tuple[SizeZone, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -138,6 +162,37 @@ def threshold_field(field, kind: str, entities: list[int], size_min: float, size
     return th
 
 
+def zone_fields(field, sizes: MeshSizes, kind: str, fractures: list[int],
+                sampling: int | None = None) -> list[int]:
+    """The gmsh size fields of ``sizes.zones`` (the Min of the background takes them).
+
+    A zone is a ``Ball`` field (``size`` inside, growing to ``sizes.size`` over ``transition``
+    outside); on the fractures only, it is the ``Max`` of the ball and of a ``Threshold`` of the
+    distance to the fracture entities ``fractures`` (of gmsh type ``kind``), so that the size is
+    small only where both are: near a fracture and in the ball.
+    """
+    out = []
+    for z in sizes.zones:
+        if z.on_fractures and not fractures:
+            continue
+        ball = field.add("Ball")
+        for name, value in zip(("XCenter", "YCenter", "ZCenter"), z.center, strict=True):
+            field.setNumber(ball, name, float(value))
+        field.setNumber(ball, "Radius", z.radius)
+        field.setNumber(ball, "Thickness", z.transition)
+        field.setNumber(ball, "VIn", z.size)
+        field.setNumber(ball, "VOut", sizes.size)
+        if not z.on_fractures:
+            out.append(ball)
+            continue
+        zone = MeshSizes(sizes.size, z.size, z.size, z.transition)
+        near = threshold_field(field, kind, fractures, z.size, zone, sampling)
+        both = field.add("Max")
+        field.setNumbers(both, "FieldsList", [ball, near])
+        out.append(both)
+    return out
+
+
 def _size_fields(gmsh, fracture_curves, sizes: MeshSizes) -> None:
     """Background size field: min of thresholds on fracture and fracture-end distances."""
     field = gmsh.model.mesh.field
@@ -149,6 +204,13 @@ def _size_fields(gmsh, fracture_curves, sizes: MeshSizes) -> None:
                                       sampling=200))
         fields.append(threshold_field(field, "PointsList", sorted({abs(t) for _, t in ends}),
                                       sizes.tip_size, sizes))
+    if sizes.zones and curves:  # about 2 samples per zone size along the longest curve
+        longest = max(gmsh.model.occ.getMass(1, c) for c in curves)
+        finest = min(z.size for z in sizes.zones)
+        fields += zone_fields(field, sizes, "CurvesList", curves,
+                              int(np.clip(np.ceil(2 * longest / finest), 200, 20000)))
+    elif sizes.zones:
+        fields += zone_fields(field, sizes, "CurvesList", curves)
     const = field.add("MathEval")
     field.setString(const, "F", repr(float(sizes.size)))
     fields.append(const)

@@ -7,8 +7,9 @@ surfaces of the geometry (polygons that are not fractures) are fragmented in the
 that no tetrahedron and no boundary triangle straddles them. Sizes: the
 ``fracture_size`` on the fractures grows linearly to ``size`` over ``transition`` (gmsh
 ``Threshold`` of the ``Distance`` to the fracture surfaces), and ``tip_size`` on the tip curves
-(fracture edges that are neither on the box nor on another fracture) grows the same way; the
-minimum of the two applies. Each ``refinement`` level then splits every tetrahedron into 8.
+(fracture edges that are neither on the box nor on another fracture) grows the same way, and so
+does the size of each zone (a ball, :class:`~poromech.mesh.generate.SizeZone`); the minimum
+applies. Each ``refinement`` level then splits every tetrahedron into 8.
 
 Finally the mesh is repaired for the cracked topology: edges that vertex cracking cannot
 duplicate (see :mod:`poromech.cracking`) are bisected.
@@ -39,7 +40,13 @@ from poromech.mesh.cracking import (
     facet_table,
     unique_rows,
 )
-from poromech.mesh.generate import MeshArrays, MeshSizes, gmsh_session, threshold_field
+from poromech.mesh.generate import (
+    MeshArrays,
+    MeshSizes,
+    gmsh_session,
+    threshold_field,
+    zone_fields,
+)
 
 __all__ = [
     "ALGORITHM_2D",
@@ -188,6 +195,9 @@ def _size_fields(gmsh, geo: BoxGeometry, surfaces: list[list[int]], tips: list[i
     if tips:
         fields.append(threshold_field(fld, "CurvesList", tips, sizes.tip_size, sizes,
                                       _sampling(extent, sizes.tip_size, 20, 2000)))
+    finest = min((z.size for z in sizes.zones), default=sizes.fracture_size)
+    fields += zone_fields(fld, sizes, "SurfacesList", all_surfaces,
+                          _sampling(extent, finest, 20, 400))
     const = fld.add("MathEval")
     fld.setString(const, "F", repr(float(sizes.size)))
     fields.append(const)
@@ -301,7 +311,8 @@ def build_mesh_3d(geo: BoxGeometry, sizes: MeshSizes, repair: bool = True,
     Returns:
         The mesh arrays (see the module docstring for the 3D conventions) and a report.
     """
-    grading = (sizes.size - min(sizes.fracture_size, sizes.tip_size)) / sizes.transition
+    grading = max([(sizes.size - min(sizes.fracture_size, sizes.tip_size)) / sizes.transition]
+                  + [(sizes.size - z.size) / z.transition for z in sizes.zones])
     if grading > MAX_GRADING:
         log.warning("3D mesh size grading %.3g > %g: expect flat tetrahedra (raise transition)",
                     grading, MAX_GRADING)

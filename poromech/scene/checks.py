@@ -312,6 +312,24 @@ def _check_probes(scene: Scene, geo: PlaneGeometry) -> None:
                         "probe_%s.csv will have no values", probe.name, path, probe.name)
 
 
+def _check_mesh_zones(scene: Scene, geo: PlaneGeometry) -> None:
+    """A zone's centre has a component per coordinate, and its ball reaches the domain."""
+    if scene.mesh is None:
+        return
+    if geo.dim == 3:
+        lo, hi = geo.lower, geo.upper
+    else:
+        lo, hi = geo.boundary.min(axis=0), geo.boundary.max(axis=0)
+    for i, zone in enumerate(scene.mesh.zones):
+        key = f"mesh.zones.{i}"
+        check_components(f"{key}.center", zone.center, geo.dim)
+        c = np.asarray(zone.center, dtype=float)
+        if np.linalg.norm(c - np.clip(c, lo, hi)) >= zone.radius:
+            raise ConfigError(f"scene key '{key}.center' = {list(zone.center)} is farther than "
+                              f"its radius {zone.radius:g} m from the domain: the zone refines "
+                              "nothing")
+
+
 def segment_meets_box(a: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> bool:
     """Whether the segment ``[a, b]`` meets the closed box ``[lo, hi]`` (slab clipping)."""
     t0, t1 = 0.0, 1.0
@@ -363,6 +381,7 @@ def check_scene(scene: Scene, geo: PlaneGeometry) -> None:
     _check_time(scene)
     _check_gravity(scene, geo)
     _check_probes(scene, geo)
+    _check_mesh_zones(scene, geo)
     if scene.physics in ("mechanics", "poromechanics"):
         _check_mechanics(scene, geo)
     if scene.physics in ("flow", "poromechanics"):

@@ -17,7 +17,7 @@ import numpy as np
 from poromech.errors import ConfigError
 from poromech.geometry.box import BoxGeometry, Fracture3D
 from poromech.geometry.plane import PlaneGeometry
-from poromech.mesh.generate import MeshSizes
+from poromech.mesh.generate import MeshSizes, SizeZone
 from poromech.scene.builder import Builder, deep_copy, field_meta, format_value
 from poromech.scene.schema import Domain, FractureSpec, MeshSpec, Scene, scene_dimension
 
@@ -302,10 +302,14 @@ def mesh_sizes(scene: Scene) -> MeshSizes:
     """Mesh sizes of a scene with the documented defaults filled in."""
     m = scene.mesh
     fracture = m.fracture_size or m.size
+    transition = m.transition or 4 * m.size
+    zones = tuple(SizeZone((*map(float, z.center), 0.0)[:3], z.radius, z.size,
+                           z.transition or transition, z.region == "fractures") for z in m.zones)
     return MeshSizes(
         size=m.size,
         fracture_size=fracture,
         tip_size=m.tip_size or fracture,
-        transition=m.transition or 4 * m.size,
+        transition=transition,
         refinement=m.refinement,
+        zones=zones,
     )

@@ -29,6 +29,7 @@ __all__ = [
     "Material",
     "MeshFile",
     "MeshSpec",
+    "MeshZone",
     "Output",
     "Probe",
     "Scene",
@@ -177,6 +178,30 @@ class Geometry:
 
 
 @dataclass(frozen=True)
+class MeshZone:
+    """A ball of finer mesh, e.g. around an injection point or a well (docs/meshes.md).
+
+    Within ``radius`` of ``center`` the element size is at most ``size``: on the fractures, from
+    which it grows to the size around over ``transition`` (``region: fractures``, the default: a
+    thin refined layer, where the jumps and the fracture flow are), or in the whole ball
+    (``region: ball``). Beyond the ball the size grows to ``mesh.size`` over ``transition``.
+    gmsh meshes only (not a ``geometry.mesh`` file).
+    """
+
+    center: tuple[float, ...] = field(metadata=doc("centre [x, y] (3D: [x, y, z])", "m"))
+    radius: float = field(metadata=doc("radius of the ball", "m", gt=0))
+    size: float = field(metadata=doc("element size in the ball", "m", gt=0))
+    transition: float | None = field(
+        default=None, metadata=doc("distance over which the size grows from size (default: "
+                                   "mesh.transition)", "m", gt=0)
+    )
+    region: Literal["fractures", "ball"] = field(
+        default="fractures",
+        metadata=doc("fractures: size on the fractures in the ball; ball: the whole ball"),
+    )
+
+
+@dataclass(frozen=True)
 class MeshSpec:
     """gmsh size control and uniform refinement."""
 
@@ -195,6 +220,9 @@ class MeshSpec:
     refinement: int = field(
         default=0, metadata=doc("uniform refinement level m (cells x4, fracture faces x2)", "",
                                 min=0, max=7)
+    )
+    zones: tuple[MeshZone, ...] = field(
+        default=(), metadata=doc("balls of finer mesh (below)")
     )
 
 

@@ -189,10 +189,13 @@ _OVERRIDDEN_BY = {"aperture": "aperture", "fracture_permeability": "permeability
 def _by_entry(scene: Scene, key: str, geo: PlaneGeometry) -> str | None:
     """Why a key of a list entry (or a fracture default) has no effect, or None.
 
-    Flow conditions on edges that no fracture ends on, per-fracture entries without values, and
-    fracture defaults of ``flow`` that every fracture overrides.
+    Flow conditions on edges that no fracture ends on, per-fracture entries without values,
+    fracture defaults of ``flow`` that every fracture overrides, and mesh zones that refine
+    nothing.
     """
     parts = key.split(".")
+    if parts[:2] == ["mesh", "zones"] and len(parts) >= 4:
+        return _zone_unused(scene, scene.mesh.zones[int(parts[2])], geo)
     if scene.flow is None or parts[0] != "flow":
         return None
     if len(parts) == 2 and parts[1] in _OVERRIDDEN_BY and geo.fracture_names:
@@ -212,6 +215,15 @@ def _by_entry(scene: Scene, key: str, geo: PlaneGeometry) -> str | None:
         if all(getattr(ff, k) is None for k in ("aperture", "permeability",
                                                 "normal_permeability", "conductivity")):
             return "the entry gives no value for its fracture"
+    return None
+
+
+def _zone_unused(scene: Scene, zone, geo: PlaneGeometry) -> str | None:
+    """Why a ``mesh.zones`` entry does not change the mesh, or None."""
+    if scene.geometry is not None and scene.geometry.mesh is not None:
+        return "the mesh is read from geometry.mesh.file (zones size the meshes gmsh makes)"
+    if zone.region == "fractures" and not geo.fracture_names:
+        return "the scene has no fractures for the zone to refine (region: ball refines the ball)"
     return None
 
 
