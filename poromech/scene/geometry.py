@@ -17,7 +17,7 @@ import numpy as np
 from poromech.errors import ConfigError
 from poromech.geometry.box import BoxGeometry, Fracture3D
 from poromech.geometry.plane import PlaneGeometry
-from poromech.mesh.generate import MeshSizes, SizeZone
+from poromech.mesh.generate import CELLS_PER_AREA, MeshSizes, SizeZone
 from poromech.scene.builder import Builder, deep_copy, field_meta, format_value
 from poromech.scene.schema import Domain, FractureSpec, MeshSpec, Scene, scene_dimension
 
@@ -264,8 +264,6 @@ def _imported_mesh_spec(geometry, cells: int, refinement: int) -> MeshSpec:
     The size is the one that the memory estimate (:mod:`poromech.scene.resources`) turns into the
     file's number of cells; nothing else uses it.
     """
-    from poromech.scene.resources import CELLS_PER_AREA
-
     p = np.asarray(geometry.domain.polygon)
     area = 0.5 * abs(float(np.dot(p[:, 0], np.roll(p[:, 1], -1))
                            - np.dot(p[:, 1], np.roll(p[:, 0], -1))))

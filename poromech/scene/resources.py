@@ -46,7 +46,7 @@ from mpi4py import MPI
 
 from poromech.geometry.box import BoxGeometry
 from poromech.geometry.plane import PlaneGeometry
-from poromech.mesh.generate import SizeZone
+from poromech.mesh.generate import CELLS_PER_AREA, SizeZone
 from poromech.scene.geometry import mesh_sizes
 from poromech.scene.schema import ITERATIVE_FROM_UNKNOWNS_3D, scene_dimension
 
@@ -65,9 +65,6 @@ __all__ = [
 
 log = logging.getLogger("poromech")
 
-#: Triangles per unit of ``∫ h⁻²`` (``1/(√3/4) ≈ 2.31`` for equilateral triangles; gmsh's
-#: frontal-Delaunay meshes of the shipped scenes give 2.4-2.5).
-CELLS_PER_AREA = 2.45
 #: Tetrahedra per unit of ``∫ h⁻³`` (gmsh's Delaunay meshes of fractured boxes give 6-8; a
 #: regular tetrahedron of edge h has volume h³/(6√2), 8.5 per h³).
 CELLS_PER_VOLUME = 7.0
