@@ -246,6 +246,9 @@ def test_meshes_too_large_for_memory(tmp_path, capsys):
             fragments=["mesh.refinement = 7", "cells", "GB", "available", "--force"])
     refused(capsys, "validate", write_scene(tmp_path / "f.yaml", flow_scene()),
             "--set", "mesh.size=1e-5", fragments=["mesh.size = 1e-05", "GB"])
+    refused(capsys, "validate", "six_fractures_mechanics", "--set",
+            "mesh.zones=[{center: [1, 0.5], radius: 0.4, size: 1e-4, region: ball}]",
+            fragments=["mesh.zones down to size 0.0001", "GB", "--force"])
     assert not (tmp_path / "r").exists()
     assert main(["validate", "six_fractures_mechanics", "--set", "mesh.refinement=7",
                  "--force"]) == 0

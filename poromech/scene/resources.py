@@ -430,7 +430,8 @@ def check_resources(scene, geo: PlaneGeometry, comm: MPI.Comm = MPI.COMM_WORLD,
               est.cells, est.unknowns, _gb(est.memory), _gb(limit), source)
     if est.memory <= limit:
         return est
-    text = (f"scene mesh (mesh.size = {m.size:g}, mesh.refinement = {m.refinement}) gives "
+    zones = (f", mesh.zones down to size {min(z.size for z in m.zones):g}" if m.zones else "")
+    text = (f"scene mesh (mesh.size = {m.size:g}, mesh.refinement = {m.refinement}{zones}) gives "
             f"~{est.cells:.2g} cells and ~{est.unknowns:.2g} unknowns, estimated to need "
             f"~{_gb(est.memory)} of memory, more than the {_gb(limit)} available ({source})")
     if force:
