@@ -85,14 +85,13 @@ MARK = {"coarse": "c", "medium": "m", "fine": "f", "xfine": "x", "local4": "L4",
 
 def mesh_overrides(level: str) -> list[str]:
     """The ``--set`` options of a mesh level."""
-    if level in LEVELS:  # uniform: without the scene's zones
-        size, fsize = LEVELS[level]
-        return [f"mesh.size={size}", f"mesh.fracture_size={fsize}", "mesh.zones=[]"]
-    h = ZONES[level]
-    c = list(CENTRE)
-    zones = (f"[{{center: {c}, radius: 45, size: {h}, transition: 40}}, "
-             f"{{center: {c}, radius: 60, size: {3 * h + 2}, transition: 40, region: ball}}]")
-    return [*mesh_overrides("medium")[:2], f"mesh.zones={zones}"]
+    size, fsize = LEVELS.get(level, LEVELS["medium"])
+    zones = "[]"  # uniform: without the scene's zones
+    if level in ZONES:
+        h, c = ZONES[level], list(CENTRE)
+        zones = (f"[{{center: {c}, radius: 45, size: {h}, transition: 40}}, "
+                 f"{{center: {c}, radius: 60, size: {3 * h + 2}, transition: 40, region: ball}}]")
+    return [f"mesh.size={size}", f"mesh.fracture_size={fsize}", f"mesh.zones={zones}"]
 
 
 #: Formulation and degree of each run (mixed P1 is not inf-sup stable in 3D).

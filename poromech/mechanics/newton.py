@@ -345,13 +345,20 @@ class SemiSmoothNewton:
                                         and self._same_states(self._jacobian_states))):
             self.record.jacobian_reuses += 1
             return
-        self._assemble_jacobian(x, A, self._last_states)
+        self._load(x)
+        self._assemble_jacobian(A, self._last_states)
 
-    def _assemble_jacobian(self, x: PETSc.Vec, A: PETSc.Mat, states: np.ndarray | None) -> None:
-        """Assemble the Jacobian at ``x`` into ``A``; ``states`` are the active set at ``x``."""
-        t0 = time.perf_counter()
+    def _load(self, x: PETSc.Vec) -> None:
+        """Scatter the ghosts of ``x`` and copy it into the unknowns."""
         dolfinx.la.petsc._ghost_update(x, PETSc.InsertMode.INSERT, PETSc.ScatterMode.FORWARD)
         assign(x, self.u)
+
+    def _assemble_jacobian(self, A: PETSc.Mat, states: np.ndarray | None) -> None:
+        """Assemble the Jacobian at the loaded unknowns (:meth:`_load`) into ``A``.
+
+        ``states`` is their active set, kept with the matrix.
+        """
+        t0 = time.perf_counter()
         if self._bulk is None or self._K is None:
             A.zeroEntries()
             dolfinx.fem.petsc.assemble_matrix(A, self.J, self.bcs, diag=1.0)
@@ -445,9 +452,7 @@ class SemiSmoothNewton:
     def _monitor(self, snes, it, fnorm) -> None:
         self.record.residuals.append(float(fnorm))
         if self.states is not None:
-            x = snes.getSolution()
-            dolfinx.la.petsc._ghost_update(x, PETSc.InsertMode.INSERT, PETSc.ScatterMode.FORWARD)
-            assign(x, self.u)
+            self._load(snes.getSolution())
             s = self.states()
             if self._last_states is not None and it > 0:
                 self.record.active_set_changes.append(
@@ -488,8 +493,7 @@ class SemiSmoothNewton:
                 self.snes.solve(None, self.x)
         finally:
             self._min_iterations = 0
-        dolfinx.la.petsc._ghost_update(self.x, PETSc.InsertMode.INSERT, PETSc.ScatterMode.FORWARD)
-        assign(self.x, self.u)
+        self._load(self.x)
         r = self.record
         reason = self.snes.getConvergedReason()
         r.reason = reason_name(reason)
@@ -654,11 +658,9 @@ class _NewtonStep:
         """
         s = self.s
         self._trial.waxpy(-(2.0 ** -s.ls.samples), Y, X)
-        dolfinx.la.petsc._ghost_update(self._trial, PETSc.InsertMode.INSERT,
-                                       PETSc.ScatterMode.FORWARD)
-        assign(self._trial, s.u)
+        s._load(self._trial)
         states = s.states() if s.states is not None else None
-        s._assemble_jacobian(self._trial, s.A, states)
+        s._assemble_jacobian(s.A, states)
         s.record.one_sided += 1
         t0 = time.perf_counter()
         solved = s.linear.solve(F, self._direction, s.record, states)

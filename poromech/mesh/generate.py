@@ -209,13 +209,11 @@ def _size_fields(gmsh, fracture_curves, sizes: MeshSizes) -> None:
                                       sampling=200))
         fields.append(threshold_field(field, "PointsList", sorted({abs(t) for _, t in ends}),
                                       sizes.tip_size, sizes))
-    if sizes.zones and curves:  # about 2 samples per zone size along the longest curve
-        longest = max(gmsh.model.occ.getMass(1, c) for c in curves)
+    if sizes.zones:  # about 2 distance samples per zone size along the longest curve
+        longest = max((gmsh.model.occ.getMass(1, c) for c in curves), default=0.0)
         finest = min(z.size for z in sizes.zones)
         fields += zone_fields(field, sizes, "CurvesList", curves,
                               int(np.clip(np.ceil(2 * longest / finest), 200, 20000)))
-    elif sizes.zones:
-        fields += zone_fields(field, sizes, "CurvesList", curves)
     const = field.add("MathEval")
     field.setString(const, "F", repr(float(sizes.size)))
     fields.append(const)
