@@ -15,8 +15,10 @@ one process solves the scene with every formulation, MUMPS LU as the linear solv
 * ``jump_diff``: the relative L² difference of the final jump field ``[[u]]`` from the
   reference's, over all fracture faces (same mesh, 6-point face quadrature), and ``diff_X``,
   ``diff_T``, ``diff_boundary``, ``diff_kink`` the same over each group of fractures (x1 + x2,
-  bar + stem, edge, kink_a + kink_b). The formulations are different discretizations of one
-  problem: the differences must shrink under refinement (a self-convergence table);
+  bar + stem, edge, kink_a + kink_b), and ``diff_T_n``, ``diff_T_t`` the normal and tangential
+  parts of the T's (each relative to the reference's whole jump there). The formulations are
+  different discretizations of one problem: the differences must shrink under refinement (a
+  self-convergence table);
 * ``state_mismatch``: the fraction of the written face states (``fractures.csv``, every load
   step) that disagree with the written tractions and jumps, as
   ``tests/test_network3d.py::test_network_states_match_tractions_and_jumps`` checks them:
@@ -33,7 +35,7 @@ The β⁰ cases (× 0.1 and × 10 of the defaults: ``beta_n``, ``beta_t`` = 250 
 formulation on one P1 and one P2 level (``BETA_LEVELS``); their ``jump_diff`` and group
 differences are against the same formulation with the default β⁰ on that level.
 
-Run (one process at a time, about 30 minutes on 2 shared cores)::
+Run (one process at a time, about 50 minutes on 2 shared cores; `--workers 2` about 35)::
 
     python scripts/contact3d_newton_scaling.py   # -> docs/mechanics3d/newton_scaling.{csv,md,png}
     python scripts/contact3d_newton_scaling.py --quick    # the two coarsest P1 levels only
@@ -63,8 +65,8 @@ from report_common import fmt, read_csv, write_csv
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "docs" / "mechanics3d"
 SCENE = ROOT / "configs" / "network3d.yaml"
-#: Mesh scale factors, coarse to fine, per degree (P2 at s = 1.3: about 34k unknowns).
-SCALES = {1: (2.5, 1.8, 1.3, 1.0, 0.75), 2: (2.5, 2.0, 1.6, 1.3)}
+#: Mesh scale factors, coarse to fine, per degree (P2 at s = 1.0: about 77k unknowns).
+SCALES = {1: (2.5, 1.8, 1.3, 1.0, 0.75), 2: (2.5, 2.0, 1.6, 1.3, 1.0)}
 #: Formulations of every level: (name, formulation, θ or None); the first is the reference.
 VARIANTS = (("nitsche", "nitsche", -1), ("nitsche θ=0", "nitsche", 0),
             ("mean_nitsche", "mean_nitsche", -1), ("stabilized_mixed", "stabilized_mixed", -1),
@@ -85,7 +87,7 @@ TARGET = 15
 FIELDS = ["case", "formulation", "theta", "degree", "scale", "beta_factor", "cells",
           "fracture_faces", "dofs", "iterations", "newton_max", "newton_total", "krylov",
           "open", "stick", "slip", "jump_diff", *(f"diff_{g}" for g in GROUPS),
-          "state_mismatch", "mismatch", "converged", "time_solve", "load"]
+          "diff_T_n", "diff_T_t", "state_mismatch", "mismatch", "converged", "time_solve", "load"]
 
 
 def overrides(degree: int, scale: float, formulation: str, theta: int | None,
@@ -179,21 +181,33 @@ def solve(sets: list[str]) -> tuple[dict, np.ndarray]:
            "slip": int(np.count_nonzero((codes % 2 == 1) & (codes != 1))),
            "state_mismatch": mismatch[0], "mismatch": mismatch[1],
            "converged": ok, "time_solve": elapsed, "load": load}
-    return row, np.column_stack([q.weights, group, jumps])
+    return row, np.column_stack([q.weights, group, jumps, q.normal])
 
 
 def differences(wj: np.ndarray, ref: np.ndarray) -> dict:
-    """Relative L² differences of the jumps from the reference's: all faces and per group."""
-    if wj.shape != ref.shape or not np.any(ref[:, 2:]):
-        return {"jump_diff": float("nan"), **{f"diff_{g}": float("nan") for g in GROUPS}}
-    w, group = ref[:, 0], ref[:, 1]
-    d2 = w * np.sum((wj[:, 2:] - ref[:, 2:]) ** 2, axis=1)
-    r2 = w * np.sum(ref[:, 2:] ** 2, axis=1)
+    """Relative L² differences of the jumps from the reference's: all faces and per group.
+
+    ``wj`` and ``ref``: per face point, (weight, group, jump (3), normal (3)). ``diff_T_n`` and
+    ``diff_T_t``: the normal and tangential parts of the T group's difference, each relative to
+    the reference's whole jump on the T (their squares add up to ``diff_T``²).
+    """
+    keys = ("jump_diff", *(f"diff_{g}" for g in GROUPS), "diff_T_n", "diff_T_t")
+    if wj.shape != ref.shape or not np.any(ref[:, 2:5]):
+        return dict.fromkeys(keys, float("nan"))
+    w, group, normal = ref[:, 0], ref[:, 1], ref[:, 5:8]
+    e = wj[:, 2:5] - ref[:, 2:5]
+    en = np.einsum("ij,ij->i", e, normal)
+    d2n = w * en**2
+    d2 = w * np.sum(e**2, axis=1)
+    r2 = w * np.sum(ref[:, 2:5] ** 2, axis=1)
     out = {"jump_diff": float(np.sqrt(d2.sum() / r2.sum()))}
     for k, g in enumerate(GROUPS):
         sel = group == k
         out[f"diff_{g}"] = float(np.sqrt(d2[sel].sum() / r2[sel].sum())) if np.any(sel) \
             else float("nan")
+    t = group == list(GROUPS).index("T")
+    out["diff_T_n"] = float(np.sqrt(d2n[t].sum() / r2[t].sum()))
+    out["diff_T_t"] = float(np.sqrt((d2[t] - d2n[t]).sum() / r2[t].sum()))
     return out
 
 
@@ -311,9 +325,12 @@ def report(rows: list[dict], stamps: list[str]) -> None:
     OUT.mkdir(parents=True, exist_ok=True)
     stamp = "; ".join(f"Generated by {s}" for s in stamps)
     rows = sorted(rows, key=_order)
+    diffs = ("jump_diff", *(f"diff_{g}" for g in GROUPS), "diff_T_n", "diff_T_t")
     for r in rows:  # a failed run holds the last accepted state, not its own solution
+        for k in FIELDS:  # columns added after a row was run
+            r.setdefault(k, float("nan"))
         if not r["converged"]:
-            r.update({k: float("nan") for k in ("jump_diff", *(f"diff_{g}" for g in GROUPS))})
+            r.update(dict.fromkeys(diffs, float("nan")))
     write_csv(OUT / "newton_scaling.csv", [stamp], FIELDS, rows)
     main_rows = [r for r in rows if r["beta_factor"] == 1.0]
     beta_rows = sorted((r for r in rows if (r["degree"], r["scale"]) in BETA_LEVELS.items()),
@@ -322,7 +339,7 @@ def report(rows: list[dict], stamps: list[str]) -> None:
     keys = ("case", "degree", "scale", "cells", "fracture_faces", "dofs", "iterations",
             "newton_max", "newton_total", "open", "stick", "slip", "jump_diff",
             "state_mismatch", "mismatch", "converged", "time_solve", "load")
-    self_keys = ("case", "degree", "scale", "dofs", "jump_diff", *(f"diff_{g}" for g in GROUPS))
+    self_keys = ("case", "degree", "scale", "dofs", *diffs)
     lines = [f"# Newton iterations on a 3D fracture network in contact\n\n{stamp}. See the "
              "docstring of `scripts/contact3d_newton_scaling.py` for the scene, the levels and "
              "the columns. Linear solver: MUMPS LU. `iterations`: Newton iterations of the 4 "
@@ -339,7 +356,8 @@ def report(rows: list[dict], stamps: list[str]) -> None:
     lines += ["\n## Self-convergence per fracture group\n\nRelative L² difference of the "
               "final jump from `nitsche` θ = -1 on the same mesh, over all fractures and over "
               "each group: X = x1 + x2, T = bar + stem, boundary = edge, kink = kink_a + "
-              "kink_b.\n\n"]
+              "kink_b; `diff_T_n`, `diff_T_t`: the normal and tangential parts of `diff_T` "
+              "(nan in rows run before they were recorded).\n\n"]
     lines += _table([r for r in main_rows if r["case"] != NAMES[0]], self_keys)
     lines += ["\n## β⁰ sweep\n\n× 0.1, × 1, × 10 of the default β⁰ (`beta_n`, `beta_t`; "
               "for `mixed` `beta_sm_n`, `beta_sm_t`); `jump_diff` and the group columns of "
