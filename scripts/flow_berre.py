@@ -10,7 +10,12 @@ among them at comparable cell counts. ``--reference``: the folder of the benchma
 (default ``../shared/data/fracture_flow_3d`` beside the repository). Writes
 ``docs/flow/berre.csv``, ``berre.md`` and ``berre_case1.png``, ``berre_case2.png``.
 
-    python scripts/flow_berre.py                 # levels 0-3: 1k to 630k cells, ~10 min
+``--sizes f ...``: also a fresh gmsh mesh of each case at ``f`` times its scene's mesh size
+(``mesh.size`` and ``mesh.fracture_size``, no refinement), rows ``size ×f``: whether a mesh made
+at the published mesh's cell count does better than a uniformly refined coarse one.
+
+    python scripts/flow_berre.py                 # levels 0-3: 1k to 630k cells, ~3 min
+    python scripts/flow_berre.py --sizes 0.4 0.35 --cases case1   # fresh meshes of case 1
     python scripts/flow_berre.py --levels 0 1    # a quick look
     python scripts/flow_berre.py --levels        # the published curves only
 """
@@ -161,20 +166,34 @@ def probe_misfit(probe_csv: Path, s_ref: np.ndarray, h_ref: np.ndarray
     return line_differences(s_ref, h_ref, s, h)["range"], s, h
 
 
-def run_level(case: Case, level: int, folder: Path, work: Path, curves: dict) -> list:
-    """Run the case's scene at a refinement level and compare its probe with the reference."""
+def run_level(case: Case, level: int, folder: Path, work: Path, curves: dict,
+              size_factor: float | None = None) -> list:
+    """Run the case's scene at a refinement level and compare its probe with the reference.
+
+    ``size_factor``: instead, a fresh mesh at that factor times the scene's mesh sizes (the row's
+    refinement column says ``size ×f``; its curve is not drawn).
+    """
+    import yaml
+
     from poromech.run import run_scene
     from poromech.scene.loading import load_scene
 
-    scene = load_scene(ROOT / "configs" / f"{case.scene}.yaml",
-                       [f"mesh.refinement={level}", "output.xdmf=false"])
-    out = work / f"{case.name}_m{level}"
+    path = ROOT / "configs" / f"{case.scene}.yaml"
+    if size_factor is None:
+        sets, tag = [f"mesh.refinement={level}"], level
+    else:
+        mesh = yaml.safe_load(path.read_text())["mesh"]
+        sets = [f"mesh.{k}={size_factor * mesh[k]:g}" for k in ("size", "fracture_size")]
+        tag = f"size ×{size_factor:g}"
+    scene = load_scene(path, [*sets, "output.xdmf=false"])
+    out = work / f"{case.name}_{'m' if size_factor is None else 's'}{level}"
     summary = run_scene(scene, out, MPI.COMM_WORLD)
     s_ref, h_ref = reference_curve(case, folder)
     misfit, s, h = probe_misfit(out / f"probe_{scene.probes[0].name}.csv", s_ref, h_ref)
-    curves[(case.name, "poromech", level)] = (s, h)
+    if size_factor is None:
+        curves[(case.name, "poromech", level)] = (s, h)
     mesh = summary["mesh"]
-    return [case.name, "poromech", level, mesh["cells"], mesh["fracture_faces"],
+    return [case.name, "poromech", tag, mesh["cells"], mesh["fracture_faces"],
             summary["flow"]["unknowns"]["total"], summary["wall_time"]["total"], misfit]
 
 
@@ -230,6 +249,8 @@ def main(argv: list[str] | None = None) -> None:
                         "fracture_flow_3d beside the repository)")
     p.add_argument("--levels", type=int, nargs="*", default=[0, 1, 2, 3],
                    help="refinement levels of the poromech runs (none: published curves only)")
+    p.add_argument("--sizes", type=float, nargs="*", default=[],
+                   help="also fresh meshes at these factors of the scenes' mesh sizes")
     p.add_argument("--cases", nargs="+", choices=sorted(CASES), default=list(CASES))
     args = p.parse_args(argv)
     folder = Path(args.reference)
@@ -246,6 +267,9 @@ def main(argv: list[str] | None = None) -> None:
             for level in args.levels:
                 rows.append(run_level(case, level, folder, Path(tmp), curves))
                 print(rows[-1], flush=True)
+            for k, f in enumerate(args.sizes):
+                rows.append(run_level(case, k, folder, Path(tmp), curves, size_factor=f))
+                print(rows[-1], flush=True)
     command = command_line(argv)
     ranks = MPI.COMM_WORLD.size
     write_csv(DOCS / "berre.csv", HEADER, rows, comment=generated(command, ranks))
@@ -254,7 +278,8 @@ def main(argv: list[str] | None = None) -> None:
             "min h_ref)) in L² along the benchmark's line (the matrix head; the normalization of "
             "the 2D study, docs/flow/flemisch.md), h_ref the reference "
             f"{LABELS[REFERENCE_METHOD]} at its finest mesh; poromech levels: the scene's mesh "
-            "refined uniformly (8 times the cells per level), wall_s the whole run (meshing "
+            "refined uniformly (8 times the cells per level), or made by gmsh at a factor of its "
+            "sizes (size ×f), wall_s the whole run (meshing "
             "included); published methods: cells, fracture faces and unknowns from their "
             "results files.\n\n")
     if notes:
