@@ -154,6 +154,52 @@ def cell(summary: dict, out: Path) -> tuple[str, bool]:
     return f"✗ {reason}", False
 
 
+#: Columns of the CSV of every table.
+CSV_HEADER = ["case", "formulation", "converged", "g evaluations", "Newton iterations",
+              "face Newton iterations", "seconds", "status"]
+
+
+def run_table(cases: dict, formulations: tuple[str, ...], sub: str, again: bool
+              ) -> tuple[list[list], list[list]]:
+    """Every case × formulation through the command line into ``RUNS/sub``.
+
+    ``cases``: name → (scene, overrides, what it probes). Returns the Markdown rows (a cell per
+    formulation, :func:`cell`) and the CSV rows (:data:`CSV_HEADER`).
+    """
+    rows, csv_rows = [], []
+    for name, (scene, sets, what) in cases.items():
+        row = [name]
+        slug = "".join(c if c.isalnum() else "_" for c in name)
+        for f in formulations:
+            out = RUNS / sub / f"{slug}_{f}"
+            summary = run_cli(out, scene, [*sets, f"contact.formulation={f}"], again=again,
+                              timeout=1800, warm=False)
+            text, ok = cell(summary, out)
+            row.append(text)
+            c = summary.get("coupling", {})
+            csv_rows.append([name, f, ok, c.get("g_evaluations", math.nan),
+                             c.get("newton_iterations", math.nan), c.get("face_iterations", 0),
+                             summary["process_seconds"], summary["status"][:200]])
+        rows.append([*row, what])
+    return rows, csv_rows
+
+
+def write_table(stem: str, title: str, command: str, setting: str,
+                formulations: tuple[str, ...], rows: list[list], csv_rows: list[list]) -> None:
+    """``DOCS/stem.{csv,md}``: the table, its command and date, and what its cells mean."""
+    stamp = f"Generated {datetime.date.today()} by `{command}`"
+    DOCS.mkdir(parents=True, exist_ok=True)
+    write_csv(DOCS / f"{stem}.csv", CSV_HEADER, csv_rows, stamp)
+    header = ["case", *formulations, "what it probes"]
+    (DOCS / f"{stem}.md").write_text(
+        f"# {title}\n\n{stamp} (1 MPI rank). {setting}, Anderson (a step it fails on is "
+        "solved again by NGMRES before it is cut), unless the case says otherwise. Cell: ✓ g "
+        "evaluations / contact Newton iterations over the run, every attempt of a cut step "
+        "included (`+ N face`: iterations of the face Newton of the condensed `mixed` solve, "
+        "docs/poromechanics.md), or ✗ and the reason. Every field written by a converged run "
+        "was checked to be finite.\n\n" + markdown_table(header, rows))
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--again", action="store_true")
@@ -162,77 +208,24 @@ def main() -> None:
     p.add_argument("--3d", dest="three", action="store_true",
                    help="the 3D fault scene's cases instead (CASES_3D)")
     args = p.parse_args()
+    command = "python scripts/poromechanics_robustness.py"
     if args.three:
-        robustness_3d(args.again)
+        cases = {n: (FAULT, [*FAULT_BASE, *sets], what) for n, (sets, what) in CASES_3D.items()}
+        rows, csv_rows = run_table(cases, FORMULATIONS_3D, "robustness3d", args.again)
+        write_table("robustness3d", "Coupled solver in 3D: stiff and extreme cases",
+                    command + " --3d", "The 3D fault scene (configs/fault_reactivation3d.yaml) "
+                    "on its coarse uniform mesh (7k P1 displacement and 36k flow unknowns), P1, "
+                    "20 steps", FORMULATIONS_3D, rows, csv_rows)
         return
     p1 = args.degree == 1
-    rows, csv_rows = [], []
-    for name, (scene, sets, what) in CASES.items():
-        row = [name]
-        for f in FORMULATIONS:
-            slug = "".join(c if c.isalnum() else "_" for c in name)
-            out = RUNS / ("robustness_p1" if p1 else "robustness") / f"{slug}_{f}"
-            summary = run_cli(out, scene, [*sets, f"contact.formulation={f}",
-                                           *(["degree=1"] if p1 else [])],
-                              again=args.again, timeout=1800, warm=False)
-            text, ok = cell(summary, out)
-            row.append(text)
-            c = summary.get("coupling", {})
-            csv_rows.append([name, f, ok, c.get("g_evaluations", math.nan),
-                             c.get("newton_iterations", math.nan),
-                             c.get("face_iterations", 0),
-                             summary["process_seconds"], summary["status"][:200]])
-        rows.append([*row, what])
-    command = "python scripts/poromechanics_robustness.py" + (" --degree 1" if p1 else "")
-    stamp = f"Generated {datetime.date.today()} by `{command}`"
+    cases = {n: (scene, [*sets, *(["degree=1"] if p1 else [])], what)
+             for n, (scene, sets, what) in CASES.items()}
     stem = "robustness_p1" if p1 else "robustness"
-    DOCS.mkdir(parents=True, exist_ok=True)
-    write_csv(DOCS / f"{stem}.csv", ["case", "formulation", "converged", "g evaluations",
-                                     "Newton iterations", "face Newton iterations", "seconds",
-                                     "status"], csv_rows, stamp)
-    header = ["case", *FORMULATIONS, "what it probes"]
-    (DOCS / f"{stem}.md").write_text(
-        f"# Coupled solver: stiff and extreme cases{' (P1)' if p1 else ''}\n\n{stamp} (1 MPI "
-        f"rank). Six-fracture scene, m = 0, {'P1' if p1 else 'P2'}, Anderson (a step it fails "
-        "on is solved again by NGMRES before it is cut), unless the case says otherwise. Cell: "
-        "✓ g evaluations / contact Newton iterations over the run, every attempt of a cut step "
-        "included (`+ N face`: iterations of the face Newton of the condensed `mixed` solve, "
-        "docs/poromechanics.md), or ✗ and the reason. Every field written by a converged run "
-        "was checked to be finite.\n\n" + markdown_table(header, rows))
-
-
-def robustness_3d(again: bool) -> None:
-    """The 3D fault scene's cases: docs/poromechanics/robustness3d.{csv,md}."""
-    rows, csv_rows = [], []
-    for name, (sets, what) in CASES_3D.items():
-        row = [name]
-        for f in FORMULATIONS_3D:
-            slug = "".join(c if c.isalnum() else "_" for c in name)
-            out = RUNS / "robustness3d" / f"{slug}_{f}"
-            summary = run_cli(out, FAULT, [*FAULT_BASE, *sets, f"contact.formulation={f}"],
-                              again=again, timeout=1800, warm=False)
-            text, ok = cell(summary, out)
-            row.append(text)
-            c = summary.get("coupling", {})
-            csv_rows.append([name, f, ok, c.get("g_evaluations", math.nan),
-                             c.get("newton_iterations", math.nan), summary["process_seconds"],
-                             summary["status"][:200]])
-        rows.append([*row, what])
-    stamp = (f"Generated {datetime.date.today()} by "
-             "`python scripts/poromechanics_robustness.py --3d`")
-    DOCS.mkdir(parents=True, exist_ok=True)
-    write_csv(DOCS / "robustness3d.csv", ["case", "formulation", "converged", "g evaluations",
-                                          "Newton iterations", "seconds", "status"],
-              csv_rows, stamp)
-    header = ["case", *FORMULATIONS_3D, "what it probes"]
-    (DOCS / "robustness3d.md").write_text(
-        f"# Coupled solver in 3D: stiff and extreme cases\n\n{stamp} (1 MPI rank). The 3D "
-        "fault scene (configs/fault_reactivation3d.yaml) on its coarse uniform mesh (7k P1 "
-        "displacement and 36k flow unknowns), P1, Anderson (a step it fails on is solved again "
-        "by NGMRES before it is cut), 20 steps, unless the case says otherwise. Cell: ✓ g "
-        "evaluations / contact Newton iterations over the run, every attempt of a cut step "
-        "included, or ✗ and the reason. Every field written by a converged run was checked to "
-        "be finite.\n\n" + markdown_table(header, rows))
+    rows, csv_rows = run_table(cases, FORMULATIONS, stem, args.again)
+    write_table(stem, f"Coupled solver: stiff and extreme cases{' (P1)' if p1 else ''}",
+                command + (" --degree 1" if p1 else ""),
+                f"Six-fracture scene, m = 0, {'P1' if p1 else 'P2'}", FORMULATIONS, rows,
+                csv_rows)
 
 
 if __name__ == "__main__":
