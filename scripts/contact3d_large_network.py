@@ -124,8 +124,17 @@ def launch(formulation: str, level: float, ranks: int, steps: int) -> dict:
     return row
 
 
+def latest(rows: list[dict]) -> list[dict]:
+    """The last row of each formulation, level and ranks, by level and formulation."""
+    def key(r: dict) -> tuple:
+        return float(r["level"]), FORMULATIONS.index(r["formulation"]), int(r["ranks"])
+
+    return sorted({key(r): r for r in rows}.values(), key=key)
+
+
 def report(rows: list[dict], commands: list[str]) -> None:
     OUT.mkdir(parents=True, exist_ok=True)
+    rows = latest(rows)
     stamp = "; ".join(f"`{c}`" for c in commands)
     write_csv(OUT / "large_network.csv", commands, FIELDS, rows)
     keys = [k for k in FIELDS if k not in ("fracture_faces",)]
@@ -154,7 +163,9 @@ def main() -> None:
     p.add_argument("--levels", nargs="+", type=float, default=[1.0],
                    help="mesh scale factors (1: the scene's mesh, larger: coarser)")
     p.add_argument("--ranks", type=int, default=2)
-    p.add_argument("--append", action="store_true", help="add to the existing rows")
+    p.add_argument("--append", action="store_true",
+                   help="add to the existing rows (replacing those of the same formulation, "
+                   "level and ranks)")
     p.add_argument("--report", action="store_true", help="rewrite the Markdown from the CSV")
     p.add_argument("--steps", type=int, default=5, help="the first load steps only")
     p.add_argument("--summary", type=Path, help="add the row of the summary.json of a run of "

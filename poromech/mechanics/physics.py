@@ -32,7 +32,7 @@ from poromech.io.xdmf import XDMFSeries
 from poromech.mechanics.linear import is_direct, iterative_options, rigid_body_modes
 from poromech.mechanics.model import MechanicsModel, PressureCoupling
 from poromech.mechanics.newton import NewtonRecord, SemiSmoothNewton
-from poromech.mechanics.predictor import StepPredictor
+from poromech.mechanics.predictor import StepPredictor, extrapolates
 from poromech.mesh.entities import fracture_segments
 from poromech.mesh.fractured import FracturedMesh
 from poromech.physics import Keyed, StepResult
@@ -198,7 +198,13 @@ class MechanicsPhysics:
             # an initial stress in equilibrium is the solution at rest: its residual is
             # round-off, and the relative tolerance is taken from the forces in balance instead
             self.solver.reference_norm = model.initial_state["scale"]
-        self.predictor = StepPredictor(model.unknowns, fm.comm)
+        extrapolate = extrapolates(scene.solver.predictor, fm.msh.topology.dim,
+                                   pressures is not None, scene.contact.formulation)
+        self.predictor = StepPredictor(model.unknowns, fm.comm, extrapolate)
+        if scene.time is not None:
+            log.info("each step's contact Newton starts from the %s (solver.predictor %s)",
+                     "last two steps extrapolated" if extrapolate else "last accepted step",
+                     scene.solver.predictor)
         self._saved = [f.x.array.copy() for f in model.unknowns]
         self._series: dict[str, XDMFSeries] = {}
         self._table: FractureTable | None = None

@@ -380,6 +380,13 @@ class Solver:
         default="contact",
         metadata=doc("contact (poromech's active-set aware search) or a PETSc line search"),
     )
+    predictor: Literal["auto", "extrapolate", "last"] = field(
+        default="auto",
+        metadata=doc("start of each step's contact Newton: extrapolate (the unknowns of the "
+                     "last two accepted steps, linearly in time), last (the last accepted "
+                     "unknowns), or auto: last in a mechanics-only 3D scene unless the "
+                     "formulation is mixed, extrapolate otherwise"),
+    )
     reuse_jacobian: bool = field(
         default=True, metadata=doc("skip refactorization when the Jacobian did not change")
     )

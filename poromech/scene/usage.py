@@ -147,6 +147,8 @@ def _conditional(scene: Scene, key: str, has_fractures: bool) -> str | None:
             return "no contact conditions: the mechanics is one linear solve per step"
         if rest == "condensation" and (c.formulation != "mixed" or scene.degree < 2):
             return "the condensed solve is that of contact.formulation mixed with degree 2"
+    if key == "solver.predictor" and mechanics and not transient:
+        return "the scene has no time steps (one solve)"
     if key == "material.biot" and scene.physics == "mechanics":
         return "physics 'mechanics' has no matrix pressure (Biot acts in 'poromechanics')"
     if key == "fracture_pressure" and not has_fractures:
