@@ -104,6 +104,22 @@ def test_network_states_match_tractions_and_jumps(network):
     assert seen == {"open", "stick", "slip"}
 
 
+@pytest.mark.parametrize(("choice", "dim", "coupled", "formulation", "expected"), [
+    ("auto", 3, False, "nitsche", False),
+    ("auto", 3, False, "stabilized_mixed", False),
+    ("auto", 3, False, "mixed", True),
+    ("auto", 3, True, "nitsche", True),
+    ("auto", 2, False, "mean_nitsche", True),
+    ("last", 2, True, "mixed", False),
+    ("extrapolate", 3, False, "nitsche", True),
+])
+def test_predictor_defaults(choice, dim, coupled, formulation, expected):
+    """``solver.predictor: auto`` extrapolates except in mechanics-only 3D scenes (but mixed)."""
+    from poromech.mechanics.predictor import extrapolates
+
+    assert extrapolates(choice, dim, coupled, formulation) is expected
+
+
 def test_network_predictor_moves_the_start_not_the_solution(network, tmp_path):
     """``solver.predictor``: a mechanics-only 3D scene starts each step from the last accepted
     unknowns (``auto``); started from their linear extrapolation instead, the same jumps and
