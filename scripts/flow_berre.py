@@ -173,8 +173,6 @@ def run_level(case: Case, level: int, folder: Path, work: Path, curves: dict,
     ``size_factor``: instead, a fresh mesh at that factor times the scene's mesh sizes (the row's
     refinement column says ``size ×f``; its curve is not drawn).
     """
-    import yaml
-
     from poromech.run import run_scene
     from poromech.scene.loading import load_scene
 
@@ -182,8 +180,9 @@ def run_level(case: Case, level: int, folder: Path, work: Path, curves: dict,
     if size_factor is None:
         sets, tag = [f"mesh.refinement={level}"], level
     else:
-        mesh = yaml.safe_load(path.read_text())["mesh"]
-        sets = [f"mesh.{k}={size_factor * mesh[k]:g}" for k in ("size", "fracture_size")]
+        mesh = load_scene(path).mesh
+        sets = [f"mesh.size={size_factor * mesh.size:g}",
+                f"mesh.fracture_size={size_factor * mesh.fracture_size:g}"]
         tag = f"size ×{size_factor:g}"
     scene = load_scene(path, [*sets, "output.xdmf=false"])
     out = work / f"{case.name}_{'m' if size_factor is None else 's'}{level}"

@@ -30,6 +30,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "scripts"))
 
+from fault_reactivation3d import mesh_overrides  # noqa: E402
 from poromechanics_study import (  # noqa: E402
     DOCS,
     FORMULATIONS,
@@ -89,7 +90,7 @@ CASES = {
 
 FAULT = ROOT / "configs" / "fault_reactivation3d.yaml"
 #: The coarse uniform mesh of scripts/fault_reactivation3d.py and P1.
-FAULT_BASE = ["mesh.size=60", "mesh.fracture_size=22", "mesh.zones=[]", "degree=1"]
+FAULT_BASE = [*mesh_overrides("coarse"), "degree=1"]
 FAULT_STEPS_1S = "{times: [" + ", ".join(str(float(k)) for k in range(1, 21)) + "]}"
 FORMULATIONS_3D = ("stabilized_mixed", "mean_nitsche", "nitsche")
 
