@@ -502,6 +502,22 @@ class SemiSmoothNewton:
         r.linear_iterations += self.snes.getLinearSolveIterations()
         return r
 
+    def merit_here(self) -> float:
+        """The line search's merit of the residual at the current unknowns (collective).
+
+        Scaled as in the last solve (:meth:`_NewtonStep._set_scale`), or ``‖F‖`` before the
+        first solve and for systems with multipliers or face averages. Not cached for the next
+        solve, nor counted in its record.
+        """
+        assign(self.u, self.x)
+        self._cache_valid = False
+        self._residual(self.snes, self.x, self.b)
+        self._cache_valid = False
+        step = self._step
+        if step is not None and step.scale is not None and step._scale_set:
+            return step._merit(self.b)
+        return self.b.norm()
+
     def _condensed_start(self, min_iterations: int) -> bool:
         """Start from the condensed solution (:mod:`~poromech.mechanics.condensed`); True if it did.
 

@@ -10,6 +10,7 @@ coupling (:class:`~poromech.mechanics.model.PressureCoupling`) and calls :meth:`
 from __future__ import annotations
 
 import logging
+import time
 from pathlib import Path
 
 import dolfinx_solver  # noqa: F401
@@ -32,7 +33,7 @@ from poromech.io.xdmf import XDMFSeries
 from poromech.mechanics.linear import is_direct, iterative_options, rigid_body_modes
 from poromech.mechanics.model import MechanicsModel, PressureCoupling
 from poromech.mechanics.newton import NewtonRecord, SemiSmoothNewton
-from poromech.mechanics.predictor import StepPredictor, extrapolates
+from poromech.mechanics.predictor import StepPredictor, start_rule
 from poromech.mesh.entities import fracture_segments
 from poromech.mesh.fractured import FracturedMesh
 from poromech.physics import Keyed, StepResult
@@ -53,6 +54,11 @@ WRITTEN_FACE_FIELDS_3D = ("jump_n", "jump_t", "jump_tx", "jump_ty", "jump_tz", "
 #: Face fields written to ``fractures.xdmf`` only: the fractions of the face in contact and
 #: sliding (they differ from 0 and 1 only where pointwise Nitsche switches inside a face).
 XDMF_ONLY_FACE_FIELDS = ("contact_fraction", "slip_fraction")
+
+#: What each start rule (:func:`~poromech.mechanics.predictor.start_rule`) is called in the log.
+START_LOG = {"extrapolate": "last two steps extrapolated", "last": "last accepted step",
+             "lower_residual": "last accepted step or the last two steps extrapolated, "
+                               "whichever has the lower residual"}
 
 
 def linear_solver_options(kind: str, formulation: str) -> dict:
@@ -198,13 +204,13 @@ class MechanicsPhysics:
             # an initial stress in equilibrium is the solution at rest: its residual is
             # round-off, and the relative tolerance is taken from the forces in balance instead
             self.solver.reference_norm = model.initial_state["scale"]
-        extrapolate = extrapolates(scene.solver.predictor, fm.msh.topology.dim,
-                                   pressures is not None, scene.contact.formulation)
-        self.predictor = StepPredictor(model.unknowns, fm.comm, extrapolate)
+        rule = start_rule(scene.solver.predictor, fm.msh.topology.dim, pressures is not None,
+                          scene.contact.formulation)
+        self.predictor = StepPredictor(model.unknowns, fm.comm, rule != "last",
+                                       self._start_merit if rule == "lower_residual" else None)
         if scene.time is not None:
             log.info("each step's contact Newton starts from the %s (solver.predictor %s)",
-                     "last two steps extrapolated" if extrapolate else "last accepted step",
-                     scene.solver.predictor)
+                     START_LOG[rule], scene.solver.predictor)
         self._saved = [f.x.array.copy() for f in model.unknowns]
         self._series: dict[str, XDMFSeries] = {}
         self._table: FractureTable | None = None
@@ -277,6 +283,13 @@ class MechanicsPhysics:
         return out
 
     # -- the contact solve, also called by the coupled physics --------------------------------
+    def _start_merit(self) -> float:
+        """The Newton's merit at the current unknowns, to choose a step's start (collective)."""
+        t0 = time.perf_counter()
+        merit = self.solver.merit_here()
+        self.timer.add("assembly", time.perf_counter() - t0)
+        return merit
+
     def begin_step(self, t: float) -> None:
         """Inputs at time ``t`` and the predicted unknowns (the start of the step's Newton)."""
         self.model.set_time(t)
@@ -306,13 +319,15 @@ class MechanicsPhysics:
         """Semi-smooth Newton at time ``t`` from the predicted unknowns."""
         self.begin_step(t)
         rec = self.solve_contact()
+        record = rec.as_dict()
+        record["start"] = self.predictor.start
         message = ""
         if not rec.converged:
             linear = f" ({rec.linear_failure})" if rec.linear_failure else ""
             message = (f"Newton did not converge at t = {t:g} s: {rec.reason} after "
                        f"{rec.iterations} iterations{linear}; residual history "
                        + ", ".join(f"{r:.3e}" for r in rec.residuals))
-        return StepResult(rec.converged, rec.as_dict(), message, rec.reason, rec.residuals)
+        return StepResult(rec.converged, record, message, rec.reason, rec.residuals)
 
     def accept(self, t: float) -> None:
         """The solved displacement becomes the reference of the next slip increment."""

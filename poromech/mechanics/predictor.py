@@ -2,41 +2,56 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import numpy.typing as npt
 from dolfinx import fem
 from mpi4py import MPI
 
-__all__ = ["StepPredictor", "extrapolates"]
+__all__ = ["StepPredictor", "start_rule"]
 
 History = list[tuple[float, list[npt.NDArray[np.float64]]]]
 
 
-def extrapolates(choice: str, dim: int, coupled: bool, formulation: str) -> bool:
-    """Whether each step's contact Newton starts from the extrapolated unknowns.
+def start_rule(choice: str, dim: int, coupled: bool, formulation: str) -> str:
+    """Where each step's contact Newton starts: ``extrapolate``, ``last`` or ``lower_residual``.
 
     Args:
-        choice: The scene's ``solver.predictor`` (``auto``, ``extrapolate`` or ``last``).
+        choice: The scene's ``solver.predictor`` (``auto`` or one of the three).
         dim: Space dimension.
         coupled: The mechanics is part of a coupled (poromechanics) scene.
         formulation: ``contact.formulation``.
 
-    ``auto`` extrapolates except in a mechanics-only 3D scene with a formulation other than
-    ``mixed``. There the loads are boundary data along the path the scene writes, and the
-    extrapolation assumes that the last step's response goes on: across a change of path
-    (compression, then shear) it doubles the compression, and after the step where slip starts
-    it repeats the slip that step released. On the seven-fracture network the face-mean
-    formulations then crept through their line search for 19–29 Newton iterations (P2) in the
-    second shear step, against 5–6 from the last unknowns (docs/mechanics3d.md, "Newton
-    iterations"). ``mixed`` extrapolates its multipliers with the displacement and was not
-    helped (16 against 44 iterations in that step on one level, the same or one more on the
-    others); in a coupled scene the pressures change smoothly and the extrapolation pays (112
-    against 117 Newton iterations on the 3D fault scene's coarse mesh); 2D keeps it, which its
-    scenes and reference outputs were built with.
+    ``auto`` in a mechanics-only 3D scene: ``lower_residual`` for ``nitsche``, ``last`` for
+    ``mean_nitsche`` and ``stabilized_mixed``, ``extrapolate`` for ``mixed``; ``extrapolate``
+    in coupled and 2D scenes. In a mechanics-only scene the loads are boundary data along the
+    path the scene writes, and neither start is right on every step. The extrapolation assumes
+    that the last step's response goes on: across a change of path (compression, then shear)
+    it doubles the compression (on the eleven-fracture network a residual of 7.6e6 against 2.4e6
+    from the last unknowns), and after the step where slip starts it repeats the slip that step
+    released; where the shear goes on it is the better guess by orders of magnitude (1.4e4
+    against 2.4e6). Measured on two networks at 5 + 5 mesh levels (docs/mechanics3d.md, "Where
+    each step starts"):
+
+    * ``nitsche``: the start of lower residual (one more residual assembly per step) takes as
+      many Newton iterations as the better of the two starts or fewer, in every step but a few
+      (within one iteration);
+    * the face-mean formulations: the extrapolation has the lower residual after the slip
+      onset but costs 12-29 Newton iterations in that step against 5-8 from the last unknowns
+      (one state per face, decided by face means, starts on the wrong branch);
+    * ``mixed``, which extrapolates its multipliers with the displacement, converges from the
+      extrapolation where it fails from the last unknowns (β⁰ × 0.1).
+
+    In a coupled scene the pressures change smoothly and the extrapolation pays (112 against
+    117 Newton iterations on the 3D fault scene's coarse mesh); 2D keeps it, which its scenes
+    and reference outputs were built with.
     """
     if choice != "auto":
-        return choice == "extrapolate"
-    return coupled or dim == 2 or formulation == "mixed"
+        return choice
+    if coupled or dim == 2 or formulation == "mixed":
+        return "extrapolate"
+    return "lower_residual" if formulation == "nitsche" else "last"
 
 
 class StepPredictor:
@@ -49,16 +64,23 @@ class StepPredictor:
     sticking (zero slip increment) in the first Newton iteration. Zero unknowns at the first
     call count as the state at ``t = 0``; unknowns that are not the last accepted ones (a
     restored checkpoint, a second call in the same step) are kept, and the history restarts.
+    With a ``merit``, the extrapolation is kept only if its merit is lower than that of the
+    last accepted unknowns (:attr:`start` says which was kept).
 
     Args:
         unknowns: The functions in block order.
         comm: Communicator.
         extrapolate: Extrapolate (else only keep the history).
+        merit: The Newton's merit of the residual at the current unknowns (collective), to
+            choose between the extrapolated and the last unknowns; None: always extrapolate.
     """
 
-    def __init__(self, unknowns: list[fem.Function], comm: MPI.Comm, extrapolate: bool = True):
+    def __init__(self, unknowns: list[fem.Function], comm: MPI.Comm, extrapolate: bool = True,
+                 merit: Callable[[], float] | None = None):
         self.unknowns, self.comm, self.extrapolate = unknowns, comm, extrapolate
+        self.merit = merit
         self.time = 0.0  # time of the step being solved (that of the last predict)
+        self.start = "last"  # the start of the step being solved: "last" or "extrapolated"
         self._history: History | None = None  # None until the first predict or accept
 
     def _copy(self) -> list[npt.NDArray[np.float64]]:
@@ -71,6 +93,7 @@ class StepPredictor:
                                        op=MPI.LAND)
             self._history = [(0.0, self._copy())] if zero else []
         self.time = t
+        self.start = "last"
         if self._history:
             last = self._history[-1][1]
             same = all(np.array_equal(f.x.array, a)
@@ -81,8 +104,14 @@ class StepPredictor:
         if self.extrapolate and len(self._history) == 2 and t > self._history[1][0]:
             (t0, x0), (t1, x1) = self._history
             r = (t - t1) / (t1 - t0)
+            at_last = self.merit() if self.merit is not None else None
             for f, a0, a1 in zip(self.unknowns, x0, x1, strict=True):
                 f.x.array[:] = a1 + r * (a1 - a0)
+            self.start = "extrapolated"
+            if at_last is not None and not self.merit() < at_last:  # (a nan keeps the last)
+                for f, a1 in zip(self.unknowns, x1, strict=True):
+                    f.x.array[:] = a1
+                self.start = "last"
 
     def accept(self) -> None:
         """The current unknowns are the accepted state at the time of the last prediction."""

@@ -380,12 +380,14 @@ class Solver:
         default="contact",
         metadata=doc("contact (poromech's active-set aware search) or a PETSc line search"),
     )
-    predictor: Literal["auto", "extrapolate", "last"] = field(
+    predictor: Literal["auto", "extrapolate", "last", "lower_residual"] = field(
         default="auto",
         metadata=doc("start of each step's contact Newton: extrapolate (the unknowns of the "
                      "last two accepted steps, linearly in time), last (the last accepted "
-                     "unknowns), or auto: last in a mechanics-only 3D scene unless the "
-                     "formulation is mixed, extrapolate otherwise"),
+                     "unknowns), lower_residual (whichever of the two has the lower residual; "
+                     "one more residual assembly per step), or auto: in a mechanics-only 3D "
+                     "scene lower_residual for nitsche, last for mean_nitsche and "
+                     "stabilized_mixed; extrapolate otherwise"),
     )
     reuse_jacobian: bool = field(
         default=True, metadata=doc("skip refactorization when the Jacobian did not change")
