@@ -29,6 +29,7 @@ import datetime
 import json
 import os
 import resource
+import shlex
 import subprocess
 import sys
 import tempfile
@@ -135,6 +136,7 @@ def latest(rows: list[dict]) -> list[dict]:
 def report(rows: list[dict], commands: list[str]) -> None:
     OUT.mkdir(parents=True, exist_ok=True)
     rows = latest(rows)
+    commands = contributing(commands, rows)
     stamp = "; ".join(f"`{c}`" for c in commands)
     write_csv(OUT / "large_network.csv", commands, FIELDS, rows)
     keys = [k for k in FIELDS if k not in ("fracture_faces",)]
@@ -156,7 +158,24 @@ def report(rows: list[dict], commands: list[str]) -> None:
     (OUT / "large_network.md").write_text("".join(lines))
 
 
-def main() -> None:
+def contributing(commands: list[str], rows: list[dict]) -> list[str]:
+    """The commands that made the current rows, in their order.
+
+    For each row the last command covering its formulation, level and ranks; earlier commands
+    whose rows were all replaced are dropped.
+    """
+    def covers(command: str) -> set[tuple]:
+        a = parser().parse_args(shlex.split(command)[2:])
+        return {(f, float(lv), a.ranks) for f in a.formulations for lv in a.levels}
+
+    cover = [covers(c) for c in commands]
+    made = {max((i for i, c in enumerate(cover)
+                 if (r["formulation"], float(r["level"]), int(r["ranks"])) in c), default=-1)
+            for r in rows}
+    return [c for i, c in enumerate(commands) if i in made]
+
+
+def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--formulations", nargs="+", default=list(FORMULATIONS),
                    choices=FORMULATIONS)
@@ -172,7 +191,11 @@ def main() -> None:
                    "this scene (e.g. one stopped after its first steps) for --formulations, "
                    "--levels and --ranks")
     p.add_argument("--case", nargs=4, help=argparse.SUPPRESS)
-    args = p.parse_args()
+    return p
+
+
+def main() -> None:
+    args = parser().parse_args()
     if args.case:
         run_case(args.case[0], float(args.case[1]), int(args.case[2]), Path(args.case[3]))
         return

@@ -372,6 +372,35 @@ def test_predictor_uses_accepted_states_only():
         assert np.allclose(mech.model.u.x.array, mech.predictor.history[0][1][0])
 
 
+@pytest.mark.parametrize(("target", "start"), [(5.0, "extrapolated"), (2.0, "last"),
+                                             (np.nan, "last")])
+def test_predictor_keeps_the_start_of_lower_merit(target, start):
+    """With a merit (``solver.predictor: lower_residual``) the extrapolation is kept only where
+    its merit is lower than the last unknowns'; a non-finite merit keeps the last ones."""
+    import dolfinx
+
+    from poromech.mechanics.predictor import StepPredictor
+
+    msh = dolfinx.mesh.create_unit_interval(MPI.COMM_SELF, 4)
+    u = dolfinx.fem.Function(dolfinx.fem.functionspace(msh, ("Lagrange", 1)))
+    calls = []
+
+    def merit() -> float:  # distance of the unknowns from ``target``
+        calls.append(u.x.array.copy())
+        return float(np.abs(u.x.array - target).max())
+
+    predictor = StepPredictor([u], MPI.COMM_SELF, merit=merit)
+    for t, value in ((1.0, 1.0), (2.0, 3.0)):  # accepted steps: u = 1, then u = 3
+        predictor.predict(t)
+        u.x.array[:] = value
+        predictor.accept()
+    predictor.predict(3.0)  # candidates: u = 3 (last) and u = 5 (extrapolated)
+    assert predictor.start == start
+    assert np.all(u.x.array == (5.0 if start == "extrapolated" else 3.0))
+    # one merit at each candidate from the second step on (the zero start counts as t = 0)
+    assert [c[0] for c in calls] == [1.0, 2.0, 3.0, 5.0]
+
+
 @pytest.mark.slow
 def test_newton_iterations_do_not_grow_with_the_mesh():
     """Pointwise P2 Nitsche on the six-fracture ramp: at most 12 Newton iterations per step from
