@@ -506,17 +506,13 @@ class SemiSmoothNewton:
         """The line search's merit of the residual at the current unknowns (collective).
 
         Scaled as in the last solve (:meth:`_NewtonStep._set_scale`), or ``‖F‖`` before the
-        first solve and for systems with multipliers or face averages. Not cached for the next
-        solve, nor counted in its record.
+        first solve and for systems with multipliers or face averages. Not counted in the next
+        solve's record (which resets the residual cache).
         """
         assign(self.u, self.x)
-        self._cache_valid = False
+        self._cache_valid = False  # the unknowns changed outside the SNES
         self._residual(self.snes, self.x, self.b)
-        self._cache_valid = False
-        step = self._step
-        if step is not None and step.scale is not None and step._scale_set:
-            return step._merit(self.b)
-        return self.b.norm()
+        return self.b.norm() if self._step is None else self._step.merit_as_last(self.b)
 
     def _condensed_start(self, min_iterations: int) -> bool:
         """Start from the condensed solution (:mod:`~poromech.mechanics.condensed`); True if it did.
@@ -608,6 +604,10 @@ class _NewtonStep:
         self._trial.waxpy(-alpha, Y, X)
         snes.computeFunction(self._trial, self._trial_f)
         return self._merit(self._trial_f)
+
+    def merit_as_last(self, F: PETSc.Vec) -> float:
+        """:meth:`_merit` with the scale of the last solve; ``‖F‖`` while none is set."""
+        return self._merit(F) if self._scale_set else F.norm()
 
     def _merit(self, F: PETSc.Vec) -> float:
         """``‖D^{-1/2}F‖`` (displacement-only systems, :meth:`_set_scale`) or ``‖F‖``."""

@@ -33,7 +33,7 @@ from poromech.io.xdmf import XDMFSeries
 from poromech.mechanics.linear import is_direct, iterative_options, rigid_body_modes
 from poromech.mechanics.model import MechanicsModel, PressureCoupling
 from poromech.mechanics.newton import NewtonRecord, SemiSmoothNewton
-from poromech.mechanics.predictor import StepPredictor, start_rule
+from poromech.mechanics.predictor import START_NAMES, StepPredictor, start_rule
 from poromech.mesh.entities import fracture_segments
 from poromech.mesh.fractured import FracturedMesh
 from poromech.physics import Keyed, StepResult
@@ -54,11 +54,6 @@ WRITTEN_FACE_FIELDS_3D = ("jump_n", "jump_t", "jump_tx", "jump_ty", "jump_tz", "
 #: Face fields written to ``fractures.xdmf`` only: the fractions of the face in contact and
 #: sliding (they differ from 0 and 1 only where pointwise Nitsche switches inside a face).
 XDMF_ONLY_FACE_FIELDS = ("contact_fraction", "slip_fraction")
-
-#: What each start rule (:func:`~poromech.mechanics.predictor.start_rule`) is called in the log.
-START_LOG = {"extrapolate": "last two steps extrapolated", "last": "last accepted step",
-             "lower_residual": "last accepted step or the last two steps extrapolated, "
-                               "whichever has the lower residual"}
 
 
 def linear_solver_options(kind: str, formulation: str) -> dict:
@@ -210,7 +205,7 @@ class MechanicsPhysics:
                                        self._start_merit if rule == "lower_residual" else None)
         if scene.time is not None:
             log.info("each step's contact Newton starts from the %s (solver.predictor %s)",
-                     START_LOG[rule], scene.solver.predictor)
+                     START_NAMES[rule], scene.solver.predictor)
         self._saved = [f.x.array.copy() for f in model.unknowns]
         self._series: dict[str, XDMFSeries] = {}
         self._table: FractureTable | None = None

@@ -9,9 +9,14 @@ import numpy.typing as npt
 from dolfinx import fem
 from mpi4py import MPI
 
-__all__ = ["StepPredictor", "start_rule"]
+__all__ = ["START_NAMES", "StepPredictor", "start_rule"]
 
 History = list[tuple[float, list[npt.NDArray[np.float64]]]]
+
+#: Each rule of :func:`start_rule`, as the log names the start it gives.
+START_NAMES = {"extrapolate": "last two steps extrapolated", "last": "last accepted step",
+               "lower_residual": "last accepted step or the last two steps extrapolated, "
+                                 "whichever has the lower residual"}
 
 
 def start_rule(choice: str, dim: int, coupled: bool, formulation: str) -> str:
