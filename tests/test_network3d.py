@@ -213,10 +213,10 @@ def test_network_jacobian_matches_finite_differences(formulation, degree):
     open, stuck and slipping (4 / 90 / 44 of the 138 with ``nitsche``), J·d equals the central
     difference of the residual block by block. The disc projection ``α x/|x|`` is not piecewise
     affine: its derivative depends on the direction of slip, and the check perturbs it.
-    ``mixed`` with P2, its inf-sup stable pairing, and a smaller difference step: its
-    multipliers of a slipping face lie within ``β_sm |Δ[[u]]_τ|`` (β_sm = 1e-8 E, about 1e-2 Pa)
-    of the stick branch, so that relative steps of 1e-7 and 1e-5 of the multipliers (0.1-10 Pa)
-    switch faces and differ from J·d by 0.9 %; 1e-9 switches none."""
+    ``mixed`` with P2, its inf-sup stable pairing, and a difference step of 1e-9: one face of
+    this mesh ends on the Coulomb bound without slipping (``|λ_τ| = F λ_n``, slip 1.5e-13 m),
+    a tie where the law has no derivative, and with steps of 1e-7 and 1e-5 the central
+    difference differs from J·d by 0.9 % (most in the rows of that face)."""
     from test_newton import check_jacobian
 
     from poromech.run import Run
