@@ -432,10 +432,11 @@ def main() -> None:
     scene = load_scene(SCENE)
     if not args.report:
         study(args.levels, args.formulations, args.ranks, scene)
+    recorded = histories()
     for row in read_rows():  # run folders of this machine not yet recorded
         path = RUNS / f"{row['variant']}-{row['level']}-n{row['ranks']}" / "history.npz"
         key = (row["variant"], row["level"], int(row["ranks"]))
-        if path.exists() and key not in histories():
+        if path.exists() and key not in recorded:
             record_history(*key, dict(np.load(path)))
     if args.reference is None:
         ran = [r for r in REFERENCES if reference_key(r) is not None]
