@@ -281,10 +281,10 @@ def histories() -> dict[tuple[str, str, int], dict[str, np.ndarray]]:
     return {key: {k: np.array(v) for k, v in h.items()} for key, h in out.items()}
 
 
-def reference_key(reference: str) -> tuple[str, str, int] | None:
-    """The recorded run of ``variant@level`` (the fewest ranks), or None."""
+def reference_key(reference: str, recorded: dict) -> tuple[str, str, int] | None:
+    """The run of ``variant@level`` in ``recorded`` (:func:`histories`; the fewest ranks)."""
     variant, level = reference.split("@")
-    ranks = sorted(k[2] for k in histories() if k[:2] == (variant, level))
+    ranks = sorted(k[2] for k in recorded if k[:2] == (variant, level))
     return (variant, level, ranks[0]) if ranks else None
 
 
@@ -299,7 +299,7 @@ def errors(reference: str) -> list[dict]:
     """Fill the error columns of the runs with a recorded history against the reference's."""
     rows = read_rows()
     recorded = histories()
-    key = reference_key(reference)
+    key = reference_key(reference, recorded)
     if key is None:
         return rows
     r = recorded[key]
@@ -434,12 +434,13 @@ def main() -> None:
         study(args.levels, args.formulations, args.ranks, scene)
     recorded = histories()
     for row in read_rows():  # run folders of this machine not yet recorded
-        path = RUNS / f"{row['variant']}-{row['level']}-n{row['ranks']}" / "history.npz"
         key = (row["variant"], row["level"], int(row["ranks"]))
+        path = RUNS / "{}-{}-n{}".format(*key) / "history.npz"
         if path.exists() and key not in recorded:
             record_history(*key, dict(np.load(path)))
+            recorded = histories()
     if args.reference is None:
-        ran = [r for r in REFERENCES if reference_key(r) is not None]
+        ran = [r for r in REFERENCES if reference_key(r, recorded) is not None]
         args.reference = ran[0] if ran else REFERENCES[-1]
     rows = errors(args.reference)
     report(rows, args.reference, scene)
