@@ -318,6 +318,38 @@ def test_fixed_point_stops_at_the_noise_of_an_ill_conditioned_darcy_solve(tmp_pa
     assert not any(r["converged_at_noise"] or r["g_noise"] for r in summaries["plain"]["solves"])
 
 
+@pytest.mark.parametrize(("method", "g", "stalled"), [
+    # |p - g(p)| = 0.5 sqrt(N) at every p: Anderson never halves it
+    ("anderson", lambda p: p - 0.5 * np.sign(p - np.pi / 3), True),
+    # Picard on g(p) = q p: the residual falls by q per iteration, halved every
+    # log 0.5 / log q iterations: 172.9 > STALL_ITERATIONS, 138.3 <= STALL_ITERATIONS
+    ("picard", lambda p: 0.996 * p, True),
+    ("picard", lambda p: 0.995 * p, False),
+])
+def test_an_attempt_whose_best_residual_is_not_halved_for_a_while_stalls(method, g, stalled):
+    """An attempt ends as ``DIVERGED_STALLED`` once its best ``|p - g(p)|`` has not been halved
+    for :data:`STALL_ITERATIONS` iterations (the fallback or a cut then follows), and not
+    while it keeps halving it, however slowly: that attempt runs on to ``coupling.max_it``."""
+    from poromech.coupling.fixed_point import STALL_ITERATIONS, FixedPoint
+    from poromech.scene.schema import Coupling
+
+    settings = Coupling(method=method, max_it=2 * STALL_ITERATIONS)
+    fp = FixedPoint(comm, 4, g, None, settings)
+    try:
+        fp.start_step()
+        reason = fp.attempt(np.linspace(1.0, 2.0, 4) * (1 + comm.rank))
+        assert reason < 0
+        if stalled:
+            assert fp.stalled == STALL_ITERATIONS == fp.stats.iterations
+            assert fp.reason_name(reason) == "DIVERGED_STALLED"
+        else:
+            assert fp.stalled is None and fp.stats.iterations == settings.max_it
+            assert fp.reason_name(reason) == "DIVERGED_MAX_IT"
+            assert fp.stats.residuals[-1] < 0.25 * fp.stats.residuals[0]
+    finally:
+        fp.destroy()
+
+
 def test_a_step_the_method_fails_on_is_solved_again_by_the_fallback(tmp_path, caplog):
     """``coupling.fallback``: a step on which ``coupling.method`` fails is solved again from the
     same start by the fallback method before it is cut. With the paper's g, Picard needs 10

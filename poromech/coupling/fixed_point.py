@@ -25,7 +25,7 @@ import numpy.typing as npt
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from poromech.petsc_options import PrefixedOptions
+from poromech.petsc_options import PrefixedOptions, reason_name
 from poromech.scene.schema import Coupling
 
 __all__ = [
@@ -34,6 +34,7 @@ __all__ = [
     "METHOD_OPTIONS",
     "NOISE_LIMIT",
     "STAGNATION",
+    "STALL_ITERATIONS",
     "EvaluationFailure",
     "FixedPoint",
     "FixedPointStats",
@@ -87,6 +88,13 @@ STAGNATION = 0.5
 #: it the inner solve is not accurate enough to trust (a sealed, incompressible fracture), and
 #: the step goes on to fail with the estimate in its message.
 NOISE_LIMIT = 1e-4
+#: An attempt whose best residual has not been halved (:data:`STAGNATION`) for this many
+#: iterations has stalled and ends there (reason ``DIVERGED_STALLED``): the fallback, then a step
+#: cut, follow instead of the rest of ``coupling.max_it``. On the 3D fault scene at 100 L/s
+#: (``mean_nitsche``, P1) Anderson's shut-in step wandered between 1.7e5 and 1e6 Pa for 287
+#: iterations after reaching 1.7e5; the longest plateau of an attempt that went on to converge,
+#: over the robustness cases of docs/poromechanics.md, was 93 iterations.
+STALL_ITERATIONS = 150
 
 
 class EvaluationFailure(RuntimeError):
@@ -150,7 +158,10 @@ class FixedPoint:
         self._fallback_snes: tuple[PETSc.SNES, PrefixedOptions] | None = None
         self.stats = FixedPointStats()
         self.failure: str | None = None
+        #: Iteration at which the current attempt stalled (:data:`STALL_ITERATIONS`), or None.
+        self.stalled: int | None = None
         self._f0 = self._best = np.nan
+        self._halved_at = 0
 
     def _create_snes(self, method: str, prefix: str,
                      petsc: dict) -> tuple[PETSc.SNES, PrefixedOptions]:
@@ -183,7 +194,7 @@ class FixedPoint:
         A failure of ``g`` in an earlier attempt is forgotten. The iterations are added to
         :attr:`stats`; the solution is in :attr:`P`.
         """
-        self.failure = None
+        self.failure = self.stalled = None
         if fallback:
             if self._fallback_snes is None:
                 self._fallback_snes = self._create_snes(
@@ -244,7 +255,8 @@ class FixedPoint:
         if self.comm.allreduce(self.failure is not None, op=MPI.LOR):
             return R.DIVERGED_FUNCTION_DOMAIN
         if it == 0:
-            self._f0 = self._best = fnorm
+            self._f0 = self._best = self._halved = fnorm
+            self._halved_at = 0
         if not np.isfinite(fnorm):
             return R.DIVERGED_FUNCTION_NANORINF
         if fnorm <= atol:
@@ -260,9 +272,19 @@ class FixedPoint:
                 return R.CONVERGED_FNORM_ABS
         if it >= max_it:
             return R.DIVERGED_MAX_IT
+        if fnorm <= STAGNATION * self._halved:
+            self._halved, self._halved_at = fnorm, it
+        elif it - self._halved_at >= STALL_ITERATIONS:
+            self.stalled = it
+            return R.DIVERGED_MAX_IT
         if fnorm > DIVERGENCE * self._f0:
             return R.DIVERGED_DTOL
         return R.ITERATING
+
+    def reason_name(self, reason: int) -> str:
+        """The name of the last attempt's converged reason: ``DIVERGED_STALLED`` if it stalled."""
+        return "DIVERGED_STALLED" if self.stalled is not None and reason <= 0 \
+            else reason_name(reason)
 
     def estimate_noise(self, pnorm: float | None = None) -> float:
         """The noise of the last ``g`` (its inner solve's forward error), recorded (collective).

@@ -32,7 +32,7 @@ import numpy as np
 import numpy.typing as npt
 from mpi4py import MPI
 
-from poromech.coupling.fixed_point import EvaluationFailure, FixedPoint
+from poromech.coupling.fixed_point import STALL_ITERATIONS, EvaluationFailure, FixedPoint
 from poromech.coupling.fixed_stress import (
     FixedStress,
     fracture_fixed_stress,
@@ -51,7 +51,6 @@ from poromech.mechanics.newton import NewtonRecord
 from poromech.mechanics.physics import MechanicsPhysics
 from poromech.mesh.entities import input_cells
 from poromech.mesh.fractured import FracturedMesh
-from poromech.petsc_options import reason_name
 from poromech.physics import Keyed, StepResult
 from poromech.scene.schema import Scene
 from poromech.timing import Timer
@@ -379,7 +378,7 @@ class Poromechanics:
                 and not fp.stats.untrusted and not self._failed_since_accept):
             log.warning("the coupled fixed point did not converge at t = %g s with %s (%s after "
                         "%d g evaluations); solving the step again with %s", t, method,
-                        reason_name(reason), self._work.evaluations, fp.fallback)
+                        fp.reason_name(reason), self._work.evaluations, fp.fallback)
             fallback_from = len(fp.stats.residuals)
             method = fp.fallback
             reason = self._attempt(t, method, fallback=True)
@@ -393,9 +392,11 @@ class Poromechanics:
                                                   self._step)
             return StepResult(True, record)
         s = fp.stats
-        why = fp.failure or (f"{reason_name(reason)} after "
+        why = fp.failure or (f"{fp.reason_name(reason)} after "
                              f"{fp.iterations_of(fallback_from is not None)} iterations of "
                              f"{method}")
+        if fp.stalled is not None and fp.failure is None:
+            why += f" (the best |p - g(p)| was not halved in its last {STALL_ITERATIONS})"
         if s.noise and fp.failure is None:
             why += (f" (estimated error of the Darcy solve {s.noise[-1]:.2e}, "
                     f"{s.noise[-1] / s.pnorm:.1e} of |p|)")
@@ -404,7 +405,7 @@ class Poromechanics:
                         "coupling.fracture_stabilization to null or a factor > 0")
         message = (f"the coupled fixed point did not converge at t = {t:g} s: {why}; "
                    "|p - g(p)| history " + ", ".join(f"{r:.3e}" for r in s.residuals))
-        return StepResult(False, record, message, reason_name(reason), list(s.residuals))
+        return StepResult(False, record, message, fp.reason_name(reason), list(s.residuals))
 
     def _attempt(self, t: float, method: str, retry: bool = True, fallback: bool = False) -> int:
         """Solve the step's fixed point from the extrapolated pressures; PETSc's reason.
@@ -423,7 +424,7 @@ class Poromechanics:
         """The step record: fixed-point statistics and the work of its ``g`` evaluations."""
         s, w = self.fixed_point.stats, self._work
         return {
-            "reason": reason_name(reason),
+            "reason": self.fixed_point.reason_name(reason),
             "converged": reason > 0,
             "iterations": s.iterations,
             "g_evaluations": w.evaluations,

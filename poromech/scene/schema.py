@@ -575,7 +575,9 @@ class Coupling:
         default=300,
         metadata=doc("largest number of iterations of an attempt (the paper's scene needs at most "
                      "9 per step; slow steps of extreme cases up to 190, e.g. a sealed fracture "
-                     "network; divergence is detected earlier)", "", min=1),
+                     "network; divergence is detected earlier, and an attempt whose best "
+                     "|p - g(p)| has not been halved for 150 iterations ends as stalled)", "",
+                     min=1),
     )
     memory: int = field(
         default=15,
