@@ -14,7 +14,7 @@ values. Writes docs/poromechanics/robustness.{csv,md}, or robustness_p1.{csv,md}
 (``mesh.size = 60``, ``mesh.fracture_size = 22``, no zones; 7k P1 displacement and 36k flow
 unknowns, 20 steps), P1, with the three formulations that are stable with P1 in 3D
 (``CASES_3D``; ``mixed`` needs P2 there). Writes docs/poromechanics/robustness3d.{csv,md}
-(about 35 minutes, most of it in the tight-rock case, which fails).
+(about 20 minutes, most of it in the tight-rock case, which fails).
 """
 
 from __future__ import annotations

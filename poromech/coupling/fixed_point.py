@@ -93,7 +93,7 @@ NOISE_LIMIT = 1e-4
 #: cut, follow instead of the rest of ``coupling.max_it``. On the 3D fault scene at 100 L/s
 #: (``mean_nitsche``, P1) Anderson's shut-in step wandered between 1.7e5 and 1e6 Pa for 287
 #: iterations after reaching 1.7e5; the longest plateau of an attempt that went on to converge,
-#: over the robustness cases of docs/poromechanics.md, was 93 iterations.
+#: over the robustness cases of docs/poromechanics.md, was 103 iterations.
 STALL_ITERATIONS = 150
 
 
