@@ -5,6 +5,7 @@
     python scripts/fault_reactivation3d.py --levels xfine --formulations nitsche-P2 --ranks 2
     python scripts/fault_reactivation3d.py --levels local4 local2 local1 --formulations nitsche-P2
     python scripts/fault_reactivation3d.py --report              # tables and figures only
+    python scripts/fault_reactivation3d.py --histories --levels coarse --formulations nitsche-P1
 
 Runs ``configs/fault_reactivation3d.yaml`` (a normal fault at 2 km depth crossed by a
 conjugate fault, with a joint ending on it; in-situ stress, gravity, hydrostatic pressure;
@@ -252,6 +253,33 @@ def study(levels, variants, ranks: int, scene) -> None:
             print(f"{variant} {level} n{ranks}: {summary['status']}, {wall:.0f} s", flush=True)
 
 
+def fill_histories(levels, variants, ranks: int, scene) -> None:
+    """Record the history of the table's converged runs that have none, keeping their rows.
+
+    Each such run is made again, untimed (its row's wall time, memory and counts were measured
+    when it was added, perhaps on another machine), and the history is recorded only if the
+    run repeats the row's g evaluations and Newton iterations: the same computation.
+    """
+    recorded = histories()
+    for row in read_rows():
+        key = (row["variant"], row["level"], int(row["ranks"]))
+        if (key in recorded or row["status"] != "converged" or row["level"] not in levels
+                or row["variant"] not in variants or key[2] != ranks):
+            continue
+        out, summary, wall, _ = run_one(*key)
+        c = summary.get("coupling", {})
+        counts = (round(c.get("g_evaluations", -1) / max(summary.get("completed_steps", 1), 1), 6),
+                  c.get("newton_iterations", -1))
+        same = counts == (round(float(row["g_per_step"]), 6), int(float(row["newton"])))
+        print(f"{key[0]} {key[1]} n{ranks}: {summary['status']}, {wall:.0f} s, g/step and Newton "
+              f"{counts} against the row's ({row['g_per_step']}, {row['newton']})"
+              f"{'' if same else ': history not recorded'}", flush=True)
+        if summary["status"] == "converged" and same:
+            h = history(scene, out)
+            np.savez(out / "history.npz", **h)
+            record_history(*key, h)
+
+
 def read_rows() -> list[dict]:
     return read_csv(CSV, text=("variant", "level", "status"))[1]
 
@@ -427,10 +455,15 @@ def main() -> None:
     ap.add_argument("--reference", default=None,
                     help=f"variant@level (default: the first of {', '.join(REFERENCES)} that ran)")
     ap.add_argument("--report", action="store_true", help="only the tables and figures")
+    ap.add_argument("--histories", action="store_true",
+                    help="run again, untimed, the selected runs of the table that have no "
+                         "recorded history, and record it (their rows are kept)")
     args = ap.parse_args()
     DOCS.mkdir(parents=True, exist_ok=True)
     scene = load_scene(SCENE)
-    if not args.report:
+    if args.histories:
+        fill_histories(args.levels, args.formulations, args.ranks, scene)
+    elif not args.report:
         study(args.levels, args.formulations, args.ranks, scene)
     recorded = histories()
     for row in read_rows():  # run folders of this machine not yet recorded
