@@ -405,7 +405,7 @@ def report(rows: list[dict], reference: str, scene) -> None:
     ax[2].set(xlabel="time (h)", ylabel="overpressure at injection (MPa)")
     ax[3].set(xlabel="wall time (s)", ylabel="mean-slip error")
     ax[3].xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
-    ax[0].legend(fontsize=6)
+    ax[0].legend(fontsize=5.5, ncol=2, loc="upper left")  # the slip is 0 there until ~3 h
     shown = [v for v in VARIANTS if any(r["variant"] == v and r.get("slip_error") not in ("", None)
                                         for r in rows)]
     ax[3].legend([plt.Line2D([], [], marker="o", ls="", color=f"C{list(VARIANTS).index(v)}")
