@@ -160,7 +160,7 @@ class FixedPoint:
         self.failure: str | None = None
         #: Iteration at which the current attempt stalled (:data:`STALL_ITERATIONS`), or None.
         self.stalled: int | None = None
-        self._f0 = self._best = np.nan
+        self._f0 = self._best = self._halved = np.nan
         self._halved_at = 0
 
     def _create_snes(self, method: str, prefix: str,
