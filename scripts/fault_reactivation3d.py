@@ -243,9 +243,7 @@ def study(levels, variants, ranks: int, scene) -> None:
                 if (level, degree, ranks) not in units:
                     units[level, degree, ranks] = unit_solves(level, degree, ranks)
                 row.update(costs(summary, units[level, degree, ranks]))
-                h = history(scene, out)
-                np.savez(out / "history.npz", **h)
-                record_history(variant, level, ranks, h)
+                h = keep_history(scene, out, (variant, level, ranks))
                 t_in = float(scene.parameters["T_inj"])
                 row["slip_mm_at_shut_in"] = 1e3 * np.interp(t_in, h["time"], h["slip"])
                 row["slip_mm_final"] = 1e3 * h["slip"][-1]
@@ -267,17 +265,23 @@ def fill_histories(levels, variants, ranks: int, scene) -> None:
                 or row["variant"] not in variants or key[2] != ranks):
             continue
         out, summary, wall, _ = run_one(*key)
-        c = summary.get("coupling", {})
-        counts = (round(c.get("g_evaluations", -1) / max(summary.get("completed_steps", 1), 1), 6),
-                  c.get("newton_iterations", -1))
+        ran = summary["status"] == "converged"
+        counts = (round(summary["coupling"]["g_evaluations"] / summary["completed_steps"], 6),
+                  summary["coupling"]["newton_iterations"]) if ran else None
         same = counts == (round(float(row["g_per_step"]), 6), int(float(row["newton"])))
         print(f"{key[0]} {key[1]} n{ranks}: {summary['status']}, {wall:.0f} s, g/step and Newton "
               f"{counts} against the row's ({row['g_per_step']}, {row['newton']})"
               f"{'' if same else ': history not recorded'}", flush=True)
-        if summary["status"] == "converged" and same:
-            h = history(scene, out)
-            np.savez(out / "history.npz", **h)
-            record_history(*key, h)
+        if same:
+            keep_history(scene, out, key)
+
+
+def keep_history(scene, out: Path, key: tuple[str, str, int]) -> dict[str, np.ndarray]:
+    """The history of the run in ``out``, kept beside it and recorded in :data:`HISTORY_CSV`."""
+    h = history(scene, out)
+    np.savez(out / "history.npz", **h)
+    record_history(*key, h)
+    return h
 
 
 def read_rows() -> list[dict]:
