@@ -249,3 +249,40 @@ def test_face_elimination_on_two_ranks_equals_one_rank():
     for key in ("l2", "l2_t", "max"):
         assert two[key] == pytest.approx(one["err"][key], rel=1e-6)
         assert one["err"][key] == pytest.approx(direct["err"][key], rel=1e-6)
+
+
+def level_smoothers(physics) -> set[str]:
+    """The PC types of GAMG's level smoothers in the mechanics KSP."""
+    pc = physics.solver.snes.getKSP().getPC()
+    return {pc.getMGSmoother(k).getPC().getType() for k in range(1, pc.getMGLevels())}
+
+
+@pytest.mark.parametrize(("ratio", "kept"), [(1e6, "jacobi"), (1e-6, "sor")])
+def test_the_level_smoother_is_chosen_on_the_first_jacobian(monkeypatch, ratio, kept):
+    """GMRES + GAMG on a contact Jacobian without a smoother in the options: the first Jacobian
+    is solved with SOR, then with Jacobi within JACOBI_RATIO times the iterations; the kept
+    smoother is the one GAMG's levels run through the later set-ups, and the slip is MUMPS'."""
+    import poromech.mechanics.linear as linear
+
+    monkeypatch.setattr(linear, "JACOBI_RATIO", ratio)
+    sets = COARSE + COULOMB_SLIP + ["contact.formulation=nitsche"]
+    scene = load_scene(SHEAR, sets + ["solver.linear_solver=iterative"])
+    with Run(scene) as run:
+        run.execute()
+        physics = run.physics
+        assert physics.solver.record.converged
+        assert physics.solver.linear.smoother == kept
+        assert level_smoothers(physics) == {kept}
+        err = jump_errors(physics.model.u, physics.fm, exact_jump(scene))
+    direct = solve(SHEAR, sets)
+    for key in ("l2", "l2_t", "max"):
+        assert err[key] == pytest.approx(direct["err"][key], rel=1e-6)
+
+
+def test_a_level_smoother_in_the_options_is_not_chosen():
+    scene = load_scene(SHEAR, COARSE + COULOMB_SLIP + ["solver.linear_solver=iterative",
+                                                       "solver.petsc={mg_levels_pc_type: sor}"])
+    with Run(scene) as run:
+        run.execute()
+        assert run.physics.solver.linear.smoother is None
+        assert level_smoothers(run.physics) == {"sor"}

@@ -12,7 +12,9 @@ from one solve to the next, is the strategy's business:
   preconditioner is set up again only when the assembled Jacobian differs from the one it was
   set up for (a fingerprint ``A z`` with a fixed random ``z``); the rigid-body modes of the
   displacement space (:func:`rigid_body_modes`) are attached to the matrix as the near-nullspace
-  that GAMG's aggregation interpolates.
+  that GAMG's aggregation interpolates. On a contact Jacobian whose options name no level
+  smoother, GAMG's smoother is chosen once per run by the iteration counts of SOR and Jacobi on
+  the same system (:data:`JACOBI_RATIO`).
 
 Both are chosen by :func:`linear_strategy` from the PETSc options of the solver's KSP, whose
 defaults for ``solver.linear_solver: iterative`` are :func:`iterative_options`. Every decision
@@ -22,6 +24,7 @@ reproducible.
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Callable
 from typing import Protocol
@@ -36,12 +39,15 @@ from petsc4py import PETSc
 
 from poromech.petsc_options import ksp_reason_name
 
+log = logging.getLogger("poromech")
+
 __all__ = [
     "DirectSolver",
     "FaceElimination",
     "HISTORY_QUOTED",
     "ITERATIVE_OPTIONS",
     "IterativeSolver",
+    "JACOBI_RATIO",
     "LinearStrategy",
     "STALE_BUDGET",
     "STALE_MAX_CHANGES",
@@ -145,6 +151,50 @@ LAG_FACTOR = 1.5
 LAG_EXTRA = 5
 
 
+#: The level smoother of GAMG on a contact Jacobian (GMRES) whose options name none
+#: (``mg_levels_pc_type``) is chosen once per run: the first Jacobian set up is solved with SOR
+#: (symmetric local sweeps), then with Jacobi, within ``JACOBI_RATIO`` times the GMRES
+#: iterations SOR took; Jacobi is kept if it converges, else SOR. A GMRES iteration with Jacobi
+#: (Chebyshev(2) on each level) costs 0.4 of one with SOR: 0.059 s against 0.139 s on the 3D
+#: fault scene's uniform fine P2 mesh (245k unknowns, 2 ranks), 0.026 s against 0.069 s on the
+#: level-4 mesh of the eleven-fracture network (P2, 1 rank). Which converges faster depends on
+#: the problem: 48 against 70 GMRES iterations per direction on the fault scene (the whole
+#: coupled run 498 s instead of 1,399 s with Jacobi), 3,417 against 707 on the network, where
+#: Jacobi nearly stalls (docs/mechanics3d.md, "Contact Jacobians"). The margin under the cost
+#: ratio of 2.4-2.6 leans towards SOR, the more robust of the two.
+JACOBI_RATIO = 2.0
+#: The level smoothers tried, the first one first.
+SMOOTHERS = ("sor", "jacobi")
+
+
+class _LevelSmoother:
+    """``<prefix>mg_levels_pc_type`` held in the options database while GAMG is set up.
+
+    The level smoothers read their options at every set-up, so the chosen one must be in the
+    database then; the previous value (the solver's pushed options) is put back on exit.
+    """
+
+    def __init__(self, prefix: str, smoother: str | None):
+        self.key, self.smoother = f"{prefix}mg_levels_pc_type", smoother
+        self._previous: str | None = None
+
+    def __enter__(self) -> None:
+        if self.smoother is None:
+            return
+        db = PETSc.Options()
+        self._previous = db.getString(self.key) if db.hasName(self.key) else None
+        db[self.key] = self.smoother
+
+    def __exit__(self, *exc) -> None:
+        if self.smoother is None:
+            return
+        db = PETSc.Options()
+        if self._previous is None:
+            db.delValue(self.key)
+        else:
+            db[self.key] = self._previous
+
+
 def _set_tolerances(ksp: PETSc.KSP, rtol: float | None = None, max_it: int | None = None) -> None:
     """Change the relative tolerance and/or the iteration limit of ``ksp``, keep the others."""
     rt, atol, dtol, it = ksp.getTolerances()
@@ -187,11 +237,10 @@ def iterative_options(symmetric: bool) -> dict[str, object]:
     if symmetric:
         return dict(ITERATIVE_OPTIONS)
     # right preconditioning: GMRES then measures the unpreconditioned residual, as CG does;
-    # SOR smoothing: Jacobi lets GAMG stall on contact Jacobians (GMRES at 0.93 of the initial
-    # residual after 1000 iterations on the one-layer slab of the six-fracture scene; 2400
-    # against 585 Krylov iterations on an eleven-fracture network, docs/mechanics3d.md)
+    # no level smoother: IterativeSolver chooses SOR or Jacobi on the first Jacobian
+    # (JACOBI_RATIO), unless the scene or the command line names one
     return {**ITERATIVE_OPTIONS, "ksp_type": "gmres", "ksp_pc_side": "right",
-            "ksp_gmres_restart": 200, "mg_levels_pc_type": "sor"}
+            "ksp_gmres_restart": 200, "mg_levels_pc_type": None}
 
 
 def rigid_body_modes(V: fem.FunctionSpace) -> npt.NDArray[np.float64]:
@@ -475,12 +524,21 @@ class IterativeSolver:
             attached as its near-nullspace; None: none.
         reuse: Keep the preconditioner for an assembled Jacobian equal to the set-up one
             (``solver.reuse_jacobian``); False: set it up for every assembled Jacobian.
+        choose_smoother: Choose GAMG's level smoother between :data:`SMOOTHERS` on the first
+            Jacobian (:data:`JACOBI_RATIO`), and switch to the other one if a solve after a
+            set-up fails; False: the options' smoother.
     """
 
     def __init__(self, ksp: PETSc.KSP, A: PETSc.Mat,
-                 modes: npt.NDArray[np.float64] | None = None, reuse: bool = True):
+                 modes: npt.NDArray[np.float64] | None = None, reuse: bool = True,
+                 choose_smoother: bool = False):
         self.ksp, self.A, self.comm = ksp, A, A.getComm().tompi4py()
         self.reuse = reuse
+        choose_smoother = choose_smoother and ksp.getPC().getType() == PETSc.PC.Type.GAMG
+        #: GAMG's level smoother held at each set-up (None: the options'); see :meth:`solve`.
+        self.smoother: str | None = SMOOTHERS[0] if choose_smoother else None
+        self._choosing = choose_smoother  # the first solves decide the smoother
+        self._switched = False  # a failed solve switched the smoother (once per run)
         self.nullspace = None if modes is None else near_nullspace(A, modes)
         self.near_nullspace_size = 0 if modes is None else len(modes)
         self._fresh = True  # a Jacobian was assembled since the last set-up
@@ -548,23 +606,93 @@ class IterativeSolver:
                 record.stale_solves += 1
                 return True
         if changed:
-            ksp.setOperators(self.A, self.A)
-            pc.setReusePreconditioner(False)
-            t0 = time.perf_counter()
-            ksp.setUp()
-            record.time_preconditioner += time.perf_counter() - t0
-            record.factorizations += 1
+            self._set_up(record)
         else:
             pc.setReusePreconditioner(True)
         ksp.solve(F, Y)
         its = ksp.getIterationNumber()
         record.linear_iterations += its
+        if ksp.getConvergedReason() <= 0 and changed and self.smoother is not None \
+                and not self._switched:
+            its = self._switch(F, Y, record)
         if ksp.getConvergedReason() > 0:
+            if changed and self._choosing:
+                its = self._choose(F, Y, its, record)
             if changed:
                 self._rate = max(its, 1) / _decades(ksp.getTolerances()[0])
             return True
         record.linear_failure = failure_message(ksp, F)
         return False
+
+    def _set_up(self, record, rebuild: bool = False) -> None:
+        """Set the preconditioner up for the current matrix, with :attr:`smoother`.
+
+        Args:
+            record: The Newton's record (set-up count and time).
+            rebuild: Build the preconditioner anew (a new level smoother for the same matrix).
+        """
+        ksp, pc = self.ksp, self.ksp.getPC()
+        t0 = time.perf_counter()
+        with _LevelSmoother(ksp.getOptionsPrefix() or "", self.smoother):
+            if rebuild:  # GAMG keeps its smoothers and their eigenvalue estimates otherwise
+                pc.setType(PETSc.PC.Type.NONE)
+                pc.setType(PETSc.PC.Type.GAMG)
+                pc.setFromOptions()
+            ksp.setOperators(self.A, self.A)
+            pc.setReusePreconditioner(False)
+            ksp.setUp()
+        record.time_preconditioner += time.perf_counter() - t0
+        record.factorizations += 1
+
+    def _choose(self, F: PETSc.Vec, Y: PETSc.Vec, its: int, record) -> int:
+        """Choose the level smoother on the system just solved (collective).
+
+        The system, solved in ``its`` iterations with the first of :data:`SMOOTHERS`, is solved
+        again with the second, within :data:`JACOBI_RATIO` times ``its``; the second is kept if
+        it converges.
+
+        Returns:
+            The iterations of the kept smoother's solve (its direction is in ``Y``).
+        """
+        self._choosing = False
+        first, second = SMOOTHERS
+        kept = Y.copy()
+        self.smoother = second
+        self._set_up(record, rebuild=True)
+        ksp = self.ksp
+        max_it = ksp.getTolerances()[3]
+        _set_tolerances(ksp, max_it=max(1, int(JACOBI_RATIO * its)))
+        ksp.solve(F, Y)
+        _set_tolerances(ksp, max_it=max_it)
+        trial = ksp.getIterationNumber()
+        record.linear_iterations += trial
+        won = ksp.getConvergedReason() > 0
+        if self.comm.rank == 0:
+            log.info("GAMG level smoother: %s (the first Jacobian in %s GMRES iterations with "
+                     "%s, %d with %s; kept if within %g times)", second if won else first,
+                     trial if won else f"more than {trial}", second, its, first, JACOBI_RATIO)
+        if won:
+            kept.destroy()
+            return trial
+        kept.copy(Y)
+        kept.destroy()
+        self.smoother = first
+        self._set_up(record, rebuild=True)
+        return its
+
+    def _switch(self, F: PETSc.Vec, Y: PETSc.Vec, record) -> int:
+        """A solve after a set-up failed: the other smoother from now on, the solve repeated."""
+        self._switched, self._choosing = True, False
+        failed = self.smoother
+        self.smoother = next(s for s in SMOOTHERS if s != failed)
+        if self.comm.rank == 0:
+            log.info("GAMG level smoother: %s from now on (the solve with %s failed: %s)",
+                     self.smoother, failed, ksp_reason_name(self.ksp.getConvergedReason()))
+        self._set_up(record, rebuild=True)
+        self.ksp.solve(F, Y)
+        its = self.ksp.getIterationNumber()
+        record.linear_iterations += its
+        return its
 
     def forget(self) -> None:
         """Set the preconditioner up again at the next solve."""
@@ -606,11 +734,12 @@ class FaceElimination:
         sizes: Owned entries of each block in order (``u`` first).
         face_block_sizes: Components per face of each face unknown (e.g. ``(3, 6)``).
         modes: Rigid-body modes of the displacement space (:func:`rigid_body_modes`).
-        reuse: See :class:`IterativeSolver`.
+        reuse, choose_smoother: See :class:`IterativeSolver`.
     """
 
     def __init__(self, ksp: PETSc.KSP, A: PETSc.Mat, sizes: list[int],
-                 face_block_sizes: list[int], modes: npt.NDArray[np.float64], reuse: bool = True):
+                 face_block_sizes: list[int], modes: npt.NDArray[np.float64], reuse: bool = True,
+                 choose_smoother: bool = False):
         self.A, self.comm = A, A.getComm().tompi4py()
         start = A.getOwnershipRange()[0]
         nu, nf = sizes[0], sum(sizes[1:])
@@ -634,6 +763,7 @@ class FaceElimination:
         self._fresh = True
         self._vecs = None
         self._ksp, self._reuse, self._modes = ksp, reuse, modes
+        self._choose_smoother = choose_smoother
         self._rtol = ksp.getTolerances()[0]
         #: Passed to the :class:`IterativeSolver` of ``S``.
         self.lagged = False
@@ -651,7 +781,8 @@ class FaceElimination:
         if self.S is None:
             self.S = self._sub["uu"].duplicate(copy=True)
             self.S.axpy(-1.0, self._P, structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
-            self.inner = IterativeSolver(self._ksp, self.S, self._modes, reuse=self._reuse)
+            self.inner = IterativeSolver(self._ksp, self.S, self._modes, reuse=self._reuse,
+                                         choose_smoother=self._choose_smoother)
             self.inner.lagged = self.lagged
         else:
             self.S.zeroEntries()
@@ -717,6 +848,11 @@ class FaceElimination:
         """The relative tolerance of the options (``ksp_rtol``)."""
         return self._rtol
 
+    @property
+    def smoother(self) -> str | None:
+        """GAMG's level smoother chosen for ``S`` (:attr:`IterativeSolver.smoother`)."""
+        return None if self.inner is None else self.inner.smoother
+
     def set_tolerance(self, rtol: float) -> None:
         """Relative tolerance of the next solve of ``S`` (:func:`forcing_term`)."""
         _set_tolerances(self._ksp, rtol=rtol)
@@ -756,6 +892,10 @@ def linear_strategy(ksp: PETSc.KSP, A: PETSc.Mat, prefix: str, *, reuse: bool, s
     """
     if is_direct(ksp):
         return DirectSolver(ksp, A, prefix, reuse=reuse, stale=stale)
+    # the level smoother is chosen by the solver unless the options name one
+    choose = not PETSc.Options().hasName(f"{prefix}mg_levels_pc_type")
     if blocks is not None:
-        return FaceElimination(ksp, A, blocks[0], blocks[1], modes(), reuse=reuse)
-    return IterativeSolver(ksp, A, None if modes is None else modes(), reuse=reuse)
+        return FaceElimination(ksp, A, blocks[0], blocks[1], modes(), reuse=reuse,
+                               choose_smoother=choose)
+    return IterativeSolver(ksp, A, None if modes is None else modes(), reuse=reuse,
+                           choose_smoother=choose)

@@ -491,6 +491,9 @@ class MechanicsPhysics:
         totals = dict(self.linear_totals)
         totals["time_preconditioner"] = self.fm.comm.allreduce(totals["time_preconditioner"],
                                                                op=MPI.MAX)
+        smoother = getattr(self.solver.linear, "smoother", None)
+        if smoother is not None:  # chosen by the solver (IterativeSolver)
+            totals["level_smoother"] = smoother
         summary.setdefault("linear_solver", {}).update(totals)
         if self.solver.condensed is not None:
             summary["condensed"] = self.solver.condensed.describe()

@@ -241,8 +241,8 @@ def _slab_mechanics(raw: dict) -> None:
                                         for b in ("front", "back")]
     solver = dict(raw.get("solver") or {})
     if solver.get("linear_solver", "auto") == "auto":
-        # the 2D scene's solver: direct (faster at slab sizes; with Jacobi smoothing, GAMG
-        # stalled on this one layer of cells, hence SOR for contact Jacobians)
+        # the 2D scene's solver: direct (faster at slab sizes; on this one layer of cells GMRES
+        # + GAMG fails on the contact Jacobians with either level smoother, SOR or Jacobi)
         solver["linear_solver"] = "direct"
     raw["solver"] = solver
 
