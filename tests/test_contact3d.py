@@ -259,9 +259,10 @@ def level_smoothers(physics) -> set[str]:
 
 @pytest.mark.parametrize(("ratio", "kept"), [(1e6, "jacobi"), (1e-6, "sor")])
 def test_the_level_smoother_is_chosen_on_the_first_jacobian(monkeypatch, ratio, kept):
-    """GMRES + GAMG on a contact Jacobian without a smoother in the options: the first Jacobian
-    is solved with SOR, then with Jacobi within JACOBI_RATIO times the iterations; the kept
-    smoother is the one GAMG's levels run through the later set-ups, and the slip is MUMPS'."""
+    """GMRES + GAMG on a contact Jacobian without a smoother in the options: at a set-up the
+    system is solved with the current smoother (SOR at first), then with the other one within
+    the iterations JACOBI_RATIO allows it; the kept smoother is the one GAMG's levels run
+    (through the later set-ups too), and the slip is MUMPS'."""
     import poromech.mechanics.linear as linear
 
     monkeypatch.setattr(linear, "JACOBI_RATIO", ratio)

@@ -13,8 +13,8 @@ from one solve to the next, is the strategy's business:
   set up for (a fingerprint ``A z`` with a fixed random ``z``); the rigid-body modes of the
   displacement space (:func:`rigid_body_modes`) are attached to the matrix as the near-nullspace
   that GAMG's aggregation interpolates. On a contact Jacobian whose options name no level
-  smoother, GAMG's smoother is chosen once per run by the iteration counts of SOR and Jacobi on
-  the same system (:data:`JACOBI_RATIO`).
+  smoother, GAMG's smoother is chosen at each set-up by the iteration counts of SOR and Jacobi
+  on the same system (:data:`JACOBI_RATIO`).
 
 Both are chosen by :func:`linear_strategy` from the PETSc options of the solver's KSP, whose
 defaults for ``solver.linear_solver: iterative`` are :func:`iterative_options`. Every decision
@@ -152,18 +152,21 @@ LAG_EXTRA = 5
 
 
 #: The level smoother of GAMG on a contact Jacobian (GMRES) whose options name none
-#: (``mg_levels_pc_type``) is chosen once per run: the first Jacobian set up is solved with SOR
-#: (symmetric local sweeps), then with Jacobi, within ``JACOBI_RATIO`` times the GMRES
-#: iterations SOR took; Jacobi is kept if it converges, else SOR. A GMRES iteration with Jacobi
-#: (Chebyshev(2) on each level) costs 0.4 of one with SOR: 0.059 s against 0.139 s on the 3D
-#: fault scene's uniform fine P2 mesh (245k unknowns, 2 ranks), 0.026 s against 0.069 s on the
-#: level-4 mesh of the eleven-fracture network (P2, 1 rank). Which converges faster depends on
-#: the problem: 48 against 70 GMRES iterations per direction on the fault scene (the whole
-#: coupled run 498 s instead of 1,399 s with Jacobi), 3,417 against 707 on the network, where
-#: Jacobi nearly stalls (docs/mechanics3d.md, "Contact Jacobians"). The margin under the cost
-#: ratio of 2.4-2.6 leans towards SOR, the more robust of the two.
+#: (``mg_levels_pc_type``) is chosen at every set-up of the preconditioner: the system is solved
+#: with the current smoother (SOR at first), then with the other one within the iterations at
+#: which it would cost less. A GMRES iteration with Jacobi (Chebyshev(2) on each level) costs
+#: 0.4 of one with SOR (symmetric local sweeps): 0.059 s against 0.139 s on the 3D fault
+#: scene's uniform fine P2 mesh (245k unknowns, 2 ranks), 0.026 s against 0.069 s on the
+#: level-4 mesh of the eleven-fracture network (P2, 1 rank). So Jacobi is taken when it needs
+#: fewer than ``JACOBI_RATIO`` times SOR's iterations, and SOR when it needs fewer than
+#: 1/``JACOBI_RATIO`` of Jacobi's. Which wins depends on the system: on the fault scene's
+#: first (stuck) Jacobian Jacobi 45 against SOR 70, but on its slipping ones with the patch
+#: resolved at 2 m Jacobi kept from the first Jacobian took 12,608 GMRES iterations for the run
+#: against 4,156 with SOR; on the network Jacobi 3,417 against SOR 707 (docs/mechanics3d.md,
+#: "Contact Jacobians"). The margin under the cost ratio of 2.4-2.6 leans towards SOR, the
+#: more robust of the two.
 JACOBI_RATIO = 2.0
-#: The level smoothers tried, the first one first.
+#: The level smoothers chosen between, the first one first.
 SMOOTHERS = ("sor", "jacobi")
 
 
@@ -237,8 +240,8 @@ def iterative_options(symmetric: bool) -> dict[str, object]:
     if symmetric:
         return dict(ITERATIVE_OPTIONS)
     # right preconditioning: GMRES then measures the unpreconditioned residual, as CG does;
-    # no level smoother: IterativeSolver chooses SOR or Jacobi on the first Jacobian
-    # (JACOBI_RATIO), unless the scene or the command line names one
+    # no level smoother: IterativeSolver chooses SOR or Jacobi at each set-up (JACOBI_RATIO),
+    # unless the scene or the command line names one
     return {**ITERATIVE_OPTIONS, "ksp_type": "gmres", "ksp_pc_side": "right",
             "ksp_gmres_restart": 200, "mg_levels_pc_type": None}
 
@@ -524,8 +527,8 @@ class IterativeSolver:
             attached as its near-nullspace; None: none.
         reuse: Keep the preconditioner for an assembled Jacobian equal to the set-up one
             (``solver.reuse_jacobian``); False: set it up for every assembled Jacobian.
-        choose_smoother: Choose GAMG's level smoother between :data:`SMOOTHERS` on the first
-            Jacobian (:data:`JACOBI_RATIO`), and switch to the other one if a solve after a
+        choose_smoother: Choose GAMG's level smoother between :data:`SMOOTHERS` at every
+            set-up (:data:`JACOBI_RATIO`), and switch to the other one when a solve after a
             set-up fails; False: the options' smoother.
     """
 
@@ -537,8 +540,7 @@ class IterativeSolver:
         choose_smoother = choose_smoother and ksp.getPC().getType() == PETSc.PC.Type.GAMG
         #: GAMG's level smoother held at each set-up (None: the options'); see :meth:`solve`.
         self.smoother: str | None = SMOOTHERS[0] if choose_smoother else None
-        self._choosing = choose_smoother  # the first solves decide the smoother
-        self._switched = False  # a failed solve switched the smoother (once per run)
+        self._chosen = 0  # choices made (the first is logged)
         self.nullspace = None if modes is None else near_nullspace(A, modes)
         self.near_nullspace_size = 0 if modes is None else len(modes)
         self._fresh = True  # a Jacobian was assembled since the last set-up
@@ -612,12 +614,13 @@ class IterativeSolver:
         ksp.solve(F, Y)
         its = ksp.getIterationNumber()
         record.linear_iterations += its
-        if ksp.getConvergedReason() <= 0 and changed and self.smoother is not None \
-                and not self._switched:
-            its = self._switch(F, Y, record)
-        if ksp.getConvergedReason() > 0:
-            if changed and self._choosing:
-                its = self._choose(F, Y, its, record)
+        converged = ksp.getConvergedReason() > 0
+        if changed and self.smoother is not None:  # chosen at each set-up (JACOBI_RATIO)
+            if converged:
+                its = self._choose(F, Y, its, record)  # the kept smoother's solve converged
+            else:
+                its, converged = self._switch(F, Y, record)
+        if converged:
             if changed:
                 self._rate = max(its, 1) / _decades(ksp.getTolerances()[0])
             return True
@@ -645,54 +648,63 @@ class IterativeSolver:
         record.factorizations += 1
 
     def _choose(self, F: PETSc.Vec, Y: PETSc.Vec, its: int, record) -> int:
-        """Choose the level smoother on the system just solved (collective).
+        """Choose the level smoother on the system just solved after a set-up (collective).
 
-        The system, solved in ``its`` iterations with the first of :data:`SMOOTHERS`, is solved
-        again with the second, within :data:`JACOBI_RATIO` times ``its``; the second is kept if
-        it converges.
+        The system, solved in ``its`` iterations with :attr:`smoother`, is solved again with the
+        other one of :data:`SMOOTHERS` within the iterations at which it costs less
+        (:data:`JACOBI_RATIO`); the other one is kept if it converges there.
 
         Returns:
             The iterations of the kept smoother's solve (its direction is in ``Y``).
         """
-        self._choosing = False
-        first, second = SMOOTHERS
+        current = self.smoother
+        other = next(s for s in SMOOTHERS if s != current)
+        cap = int(its * JACOBI_RATIO) if other == "jacobi" else int(its / JACOBI_RATIO)
+        if cap < 1:
+            return its
         kept = Y.copy()
-        self.smoother = second
+        self.smoother = other
         self._set_up(record, rebuild=True)
         ksp = self.ksp
         max_it = ksp.getTolerances()[3]
-        _set_tolerances(ksp, max_it=max(1, int(JACOBI_RATIO * its)))
+        _set_tolerances(ksp, max_it=cap)
         ksp.solve(F, Y)
         _set_tolerances(ksp, max_it=max_it)
         trial = ksp.getIterationNumber()
         record.linear_iterations += trial
         won = ksp.getConvergedReason() > 0
+        self._chosen += 1
         if self.comm.rank == 0:
-            log.info("GAMG level smoother: %s (the first Jacobian in %s GMRES iterations with "
-                     "%s, %d with %s; kept if within %g times)", second if won else first,
-                     trial if won else f"more than {trial}", second, its, first, JACOBI_RATIO)
+            (log.info if self._chosen == 1 or won else log.debug)(
+                "GAMG level smoother: %s (a new preconditioner solved in %s GMRES iterations "
+                "with %s, %d with %s; Jacobi is taken below %g times SOR's)",
+                other if won else current, trial if won else f"more than {trial}", other, its,
+                current, JACOBI_RATIO)
         if won:
             kept.destroy()
             return trial
         kept.copy(Y)
         kept.destroy()
-        self.smoother = first
+        self.smoother = current
         self._set_up(record, rebuild=True)
         return its
 
-    def _switch(self, F: PETSc.Vec, Y: PETSc.Vec, record) -> int:
-        """A solve after a set-up failed: the other smoother from now on, the solve repeated."""
-        self._switched, self._choosing = True, False
+    def _switch(self, F: PETSc.Vec, Y: PETSc.Vec, record) -> tuple[int, bool]:
+        """A solve after a set-up failed: the solve repeated with the other smoother.
+
+        Returns:
+            Its iterations, and whether it converged.
+        """
         failed = self.smoother
         self.smoother = next(s for s in SMOOTHERS if s != failed)
         if self.comm.rank == 0:
-            log.info("GAMG level smoother: %s from now on (the solve with %s failed: %s)",
+            log.info("GAMG level smoother: %s (the solve with %s failed: %s)",
                      self.smoother, failed, ksp_reason_name(self.ksp.getConvergedReason()))
         self._set_up(record, rebuild=True)
         self.ksp.solve(F, Y)
         its = self.ksp.getIterationNumber()
         record.linear_iterations += its
-        return its
+        return its, self.ksp.getConvergedReason() > 0
 
     def forget(self) -> None:
         """Set the preconditioner up again at the next solve."""
