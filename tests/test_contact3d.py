@@ -257,15 +257,15 @@ def level_smoothers(physics) -> set[str]:
     return {pc.getMGSmoother(k).getPC().getType() for k in range(1, pc.getMGLevels())}
 
 
-@pytest.mark.parametrize(("ratio", "kept"), [(1e6, "jacobi"), (1e-6, "sor")])
-def test_the_level_smoother_is_chosen_on_the_first_jacobian(monkeypatch, ratio, kept):
+@pytest.mark.parametrize(("cost", "kept"), [(1e-6, "jacobi"), (1e6, "sor")])
+def test_the_level_smoother_is_chosen_at_each_set_up(monkeypatch, cost, kept):
     """GMRES + GAMG on a contact Jacobian without a smoother in the options: at a set-up the
     system is solved with the current smoother (SOR at first), then with the other one within
-    the iterations JACOBI_RATIO allows it; the kept smoother is the one GAMG's levels run
-    (through the later set-ups too), and the slip is MUMPS'."""
+    the iterations at which it costs less (JACOBI_COST, SWITCH_GAIN); the kept smoother is the
+    one GAMG's levels run (through the later set-ups too), and the slip is MUMPS'."""
     import poromech.mechanics.linear as linear
 
-    monkeypatch.setattr(linear, "JACOBI_RATIO", ratio)
+    monkeypatch.setattr(linear, "JACOBI_COST", cost)
     sets = COARSE + COULOMB_SLIP + ["contact.formulation=nitsche"]
     scene = load_scene(SHEAR, sets + ["solver.linear_solver=iterative"])
     with Run(scene) as run:

@@ -14,7 +14,7 @@ from one solve to the next, is the strategy's business:
   displacement space (:func:`rigid_body_modes`) are attached to the matrix as the near-nullspace
   that GAMG's aggregation interpolates. On a contact Jacobian whose options name no level
   smoother, GAMG's smoother is chosen at each set-up by the iteration counts of SOR and Jacobi
-  on the same system (:data:`JACOBI_RATIO`).
+  on the same system (:data:`SWITCH_GAIN`).
 
 Both are chosen by :func:`linear_strategy` from the PETSc options of the solver's KSP, whose
 defaults for ``solver.linear_solver: iterative`` are :func:`iterative_options`. Every decision
@@ -47,13 +47,14 @@ __all__ = [
     "HISTORY_QUOTED",
     "ITERATIVE_OPTIONS",
     "IterativeSolver",
-    "JACOBI_RATIO",
+    "JACOBI_COST",
     "LinearStrategy",
     "STALE_BUDGET",
     "STALE_MAX_CHANGES",
     "STALE_MAX_IT",
     "STALE_MIN_UNKNOWNS",
     "STALE_RTOL",
+    "SWITCH_GAIN",
     "failure_message",
     "forcing_term",
     "is_direct",
@@ -154,18 +155,22 @@ LAG_EXTRA = 5
 #: The level smoother of GAMG on a contact Jacobian (GMRES) whose options name none
 #: (``mg_levels_pc_type``) is chosen at every set-up of the preconditioner: the system is solved
 #: with the current smoother (SOR at first), then with the other one within the iterations at
-#: which it would cost less. A GMRES iteration with Jacobi (Chebyshev(2) on each level) costs
-#: 0.4 of one with SOR (symmetric local sweeps): 0.059 s against 0.139 s on the 3D fault
-#: scene's uniform fine P2 mesh (245k unknowns, 2 ranks), 0.026 s against 0.069 s on the
-#: level-4 mesh of the eleven-fracture network (P2, 1 rank). So Jacobi is taken when it needs
-#: fewer than ``JACOBI_RATIO`` times SOR's iterations, and SOR when it needs fewer than
-#: 1/``JACOBI_RATIO`` of Jacobi's. Which wins depends on the system: on the fault scene's
-#: first (stuck) Jacobian Jacobi 45 against SOR 70, but on its slipping ones with the patch
-#: resolved at 2 m Jacobi kept from the first Jacobian took 12,608 GMRES iterations for the run
-#: against 4,156 with SOR; on the network Jacobi 3,417 against SOR 707 (docs/mechanics3d.md,
-#: "Contact Jacobians"). The margin under the cost ratio of 2.4-2.6 leans towards SOR, the
-#: more robust of the two.
-JACOBI_RATIO = 2.0
+#: which its solve costs less than 1/:data:`SWITCH_GAIN` of the current one's, and the other
+#: is kept if it converges there. ``JACOBI_COST`` is the cost of a GMRES iteration with Jacobi
+#: (Chebyshev(2) on each level) relative to one with SOR (symmetric local sweeps): 0.059 s
+#: against 0.139 s on the 3D fault scene's uniform fine P2 mesh (245k unknowns, 2 ranks),
+#: 0.026 s against 0.069 s on the level-4 mesh of the eleven-fracture network (P2, 1 rank).
+JACOBI_COST = 0.4
+#: How much cheaper the other smoother's solve must be for a switch (see :data:`JACOBI_COST`):
+#: Jacobi replaces SOR below 1.56 times SOR's iterations, SOR replaces Jacobi below 1/4 of
+#: Jacobi's. A switch also changes the hierarchy the later Jacobians lag on, which one solve
+#: does not measure: on the fault scene's ``local2`` mesh (P2, 2 ranks) Jacobi won the first,
+#: stuck Jacobian (53 against 28 iterations, within twice), lost the slipping ones, and the
+#: run took 726 s against 718 s with SOR alone; on ``local4`` 324 s against 296 s. Which wins
+#: depends on the system: on the fault scene's uniform fine mesh Jacobi (45 against 70; the
+#: run 506 s against 1,399 s with SOR alone), on the network SOR (707 GMRES iterations against
+#: 3,417 with Jacobi throughout; docs/mechanics3d.md, "Contact Jacobians").
+SWITCH_GAIN = 1.6
 #: The level smoothers chosen between, the first one first.
 SMOOTHERS = ("sor", "jacobi")
 
@@ -240,7 +245,7 @@ def iterative_options(symmetric: bool) -> dict[str, object]:
     if symmetric:
         return dict(ITERATIVE_OPTIONS)
     # right preconditioning: GMRES then measures the unpreconditioned residual, as CG does;
-    # no level smoother: IterativeSolver chooses SOR or Jacobi at each set-up (JACOBI_RATIO),
+    # no level smoother: IterativeSolver chooses SOR or Jacobi at each set-up (SWITCH_GAIN),
     # unless the scene or the command line names one
     return {**ITERATIVE_OPTIONS, "ksp_type": "gmres", "ksp_pc_side": "right",
             "ksp_gmres_restart": 200, "mg_levels_pc_type": None}
@@ -528,7 +533,7 @@ class IterativeSolver:
         reuse: Keep the preconditioner for an assembled Jacobian equal to the set-up one
             (``solver.reuse_jacobian``); False: set it up for every assembled Jacobian.
         choose_smoother: Choose GAMG's level smoother between :data:`SMOOTHERS` at every
-            set-up (:data:`JACOBI_RATIO`), and switch to the other one when a solve after a
+            set-up (:data:`SWITCH_GAIN`), and switch to the other one when a solve after a
             set-up fails; False: the options' smoother.
     """
 
@@ -615,7 +620,7 @@ class IterativeSolver:
         its = ksp.getIterationNumber()
         record.linear_iterations += its
         converged = ksp.getConvergedReason() > 0
-        if changed and self.smoother is not None:  # chosen at each set-up (JACOBI_RATIO)
+        if changed and self.smoother is not None:  # chosen at each set-up (SWITCH_GAIN)
             if converged:
                 its = self._choose(F, Y, its, record)  # the kept smoother's solve converged
             else:
@@ -651,15 +656,16 @@ class IterativeSolver:
         """Choose the level smoother on the system just solved after a set-up (collective).
 
         The system, solved in ``its`` iterations with :attr:`smoother`, is solved again with the
-        other one of :data:`SMOOTHERS` within the iterations at which it costs less
-        (:data:`JACOBI_RATIO`); the other one is kept if it converges there.
+        other one of :data:`SMOOTHERS` within the iterations at which it costs less than
+        1/:data:`SWITCH_GAIN` of the first solve; the other one is kept if it converges there.
 
         Returns:
             The iterations of the kept smoother's solve (its direction is in ``Y``).
         """
         current = self.smoother
         other = next(s for s in SMOOTHERS if s != current)
-        cap = int(its * JACOBI_RATIO) if other == "jacobi" else int(its / JACOBI_RATIO)
+        cost = {"sor": 1.0, "jacobi": JACOBI_COST}
+        cap = int(its * cost[current] / (cost[other] * SWITCH_GAIN))
         if cap < 1:
             return its
         kept = Y.copy()
@@ -677,9 +683,8 @@ class IterativeSolver:
         if self.comm.rank == 0:
             (log.info if self._chosen == 1 or won else log.debug)(
                 "GAMG level smoother: %s (a new preconditioner solved in %s GMRES iterations "
-                "with %s, %d with %s; Jacobi is taken below %g times SOR's)",
-                other if won else current, trial if won else f"more than {trial}", other, its,
-                current, JACOBI_RATIO)
+                "with %s, %d with %s; taken within %d)", other if won else current,
+                trial if won else f"more than {trial}", other, its, current, cap)
         if won:
             kept.destroy()
             return trial
