@@ -495,8 +495,11 @@ def main() -> None:
     rows = errors(args.reference)
     report(rows, args.reference, scene)
     best = reference_run(args.reference)
-    if (best / "fractures.xdmf").exists():
+    summary = best / "summary.json"
+    if summary.exists() and json.loads(summary.read_text())["status"] == "converged":
         picture(best, scene)
+    else:  # a run folder without a finished run (none, or interrupted): the picture is kept
+        print(f"{best}: no converged run there, docs/images/fault_reactivation3d.png not redrawn")
 
 
 if __name__ == "__main__":
