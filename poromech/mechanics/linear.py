@@ -37,7 +37,7 @@ from dolfinx import fem
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from poromech.petsc_options import ksp_reason_name
+from poromech.petsc_options import PrefixedOptions, ksp_reason_name
 
 log = logging.getLogger("poromech")
 
@@ -175,32 +175,9 @@ SWITCH_GAIN = 1.6
 SMOOTHERS = ("sor", "jacobi")
 
 
-class _LevelSmoother:
-    """``<prefix>mg_levels_pc_type`` held in the options database while GAMG is set up.
-
-    The level smoothers read their options at every set-up, so the chosen one must be in the
-    database then; the previous value (the solver's pushed options) is put back on exit.
-    """
-
-    def __init__(self, prefix: str, smoother: str | None):
-        self.key, self.smoother = f"{prefix}mg_levels_pc_type", smoother
-        self._previous: str | None = None
-
-    def __enter__(self) -> None:
-        if self.smoother is None:
-            return
-        db = PETSc.Options()
-        self._previous = db.getString(self.key) if db.hasName(self.key) else None
-        db[self.key] = self.smoother
-
-    def __exit__(self, *exc) -> None:
-        if self.smoother is None:
-            return
-        db = PETSc.Options()
-        if self._previous is None:
-            db.delValue(self.key)
-        else:
-            db[self.key] = self._previous
+def _other_smoother(smoother: str) -> str:
+    """The level smoother of :data:`SMOOTHERS` that is not ``smoother``."""
+    return next(s for s in SMOOTHERS if s != smoother)
 
 
 def _set_tolerances(ksp: PETSc.KSP, rtol: float | None = None, max_it: int | None = None) -> None:
@@ -641,7 +618,9 @@ class IterativeSolver:
         """
         ksp, pc = self.ksp, self.ksp.getPC()
         t0 = time.perf_counter()
-        with _LevelSmoother(ksp.getOptionsPrefix() or "", self.smoother):
+        # the levels read their smoother at every set-up; when it is chosen here, no option
+        # names it (linear_strategy), so it is pushed for the set-up and removed after
+        with PrefixedOptions(ksp.getOptionsPrefix() or "", {"mg_levels_pc_type": self.smoother}):
             if rebuild:  # GAMG keeps its smoothers and their eigenvalue estimates otherwise
                 pc.setType(PETSc.PC.Type.NONE)
                 pc.setType(PETSc.PC.Type.GAMG)
@@ -663,7 +642,7 @@ class IterativeSolver:
             The iterations of the kept smoother's solve (its direction is in ``Y``).
         """
         current = self.smoother
-        other = next(s for s in SMOOTHERS if s != current)
+        other = _other_smoother(current)
         cost = {"sor": 1.0, "jacobi": JACOBI_COST}
         cap = int(its * cost[current] / (cost[other] * SWITCH_GAIN))
         if cap < 1:
@@ -701,7 +680,7 @@ class IterativeSolver:
             Its iterations, and whether it converged.
         """
         failed = self.smoother
-        self.smoother = next(s for s in SMOOTHERS if s != failed)
+        self.smoother = _other_smoother(failed)
         if self.comm.rank == 0:
             log.info("GAMG level smoother: %s (the solve with %s failed: %s)",
                      self.smoother, failed, ksp_reason_name(self.ksp.getConvergedReason()))
