@@ -338,3 +338,8 @@ def test_forcing_term_of_the_inexact_newton():
     assert forcing_term(1e-6, 1e-2, 1e-20, 1e-11) == pytest.approx(0.9e-8)
     assert forcing_term(1e-6, 1e-2, 1e-30, 1e-7) == 1e-7  # the options' ksp_rtol
     assert forcing_term(1.0, 0.5, 1e-10, 1e-11) == FORCING_MAX  # slow progress: capped
+    # within three decades of the target the margin loosens the solve beyond FORCING_MAX
+    assert forcing_term(1e3, 1e7, 1e2, 1e-11) == pytest.approx(1e-2)
+    assert forcing_term(1e3, None, 1e2, 1e-11) == pytest.approx(1e-2)
+    # below the target (a step the Newton is made to take) it stays at FORCING_MAX
+    assert forcing_term(50.0, None, 1e2, 1e-11) == FORCING_MAX
