@@ -18,6 +18,7 @@ import dolfinx_solver  # noqa: F401
 import numpy as np
 import pytest
 from conftest import ROOT, run_parallel
+from petsc4py import PETSc
 
 from poromech.run import run_scene
 from poromech.scene.loading import load_scene
@@ -204,6 +205,67 @@ def test_network_facewise_formulations_p2():
 
     assert rel(jumps["stabilized_mixed"], jumps["mean_nitsche"]) < 1e-8
     assert 1e-3 < rel(jumps["mixed"], jumps["nitsche"]) < 0.1
+
+
+def test_network_mixed_p2_full_steps_on_a_smooth_piece(monkeypatch):
+    """``mixed`` P2 at mesh scale 2 (15k unknowns), the compression step. Two faces next to the
+    kink slip at a vanishing rate (4e-9 m) while their tractions must still turn by about 8°:
+    along a Newton step that switches no contact point the merit grows as ``C α²`` (the chord
+    of the friction disc's rim), and the damped search crept at α = 0.01-0.3 for 20 iterations
+    (32 in the step). Taking such full steps against the merit, within
+    ``NONMONOTONE_STEPS`` iterations of paying off (poromech/mechanics/newton.py): 14, with
+    two of them, and the same jumps. Then the way back when a run does not pay off: the
+    iterate becomes the anchor moved by the step searched along the anchor's direction."""
+    import poromech.mechanics.newton as newton
+    from poromech.run import Run
+    from poromech.verification.jumps import face_quadrature, jump_values
+
+    sets = [c for c in COARSE if not c.startswith(("degree", "mesh"))] + [
+        "degree=2", "mesh.size=0.6", "mesh.fracture_size=0.2", "contact.formulation=mixed",
+        "time.final=1", "time.steps=1"]
+    jumps, records = {}, {}
+    default = newton.NONMONOTONE_STEPS
+    for steps in (default, 0):
+        monkeypatch.setattr(newton, "NONMONOTONE_STEPS", steps)
+        with Run(load_scene(NETWORK, sets)) as run:
+            records[steps] = run.execute()["solves"][0]
+            q = face_quadrature(run.physics.fm, 6)
+            jumps[steps] = jump_values(run.physics.model.u, q)
+            if steps == 0:
+                continue
+            # the way back from an anchor (here the solution, along a made-up direction)
+            s = run.physics.solver
+            step = s._step
+            X, Y, d = s.x.copy(), s.x.duplicate(), s.x.duplicate()
+            rnd = PETSc.Random().create(s.comm)
+            rnd.setSeed(1)
+            d.setRandom(rnd)
+            rnd.destroy()
+            d.scale(1e-6 * s.x.norm() / d.norm())
+            X.copy(step._anchor_x)
+            d.copy(step._anchor_y)
+            s.snes.computeFunction(X, s.b)
+            f = step._merit(s.b)
+            step._anchor_f, step._run = f, s.ls.nonmonotone
+            alpha = step._choose_step(s.snes, X, None, d, f)[0]
+            moved = X.copy()
+            moved.axpy(1.0, d)  # the iterate after the run: somewhere else
+            assert step._back_to_anchor(s.snes, moved, Y) == 1.0
+            assert step._anchor_f is None and s.record.nonmonotone_returns == 1
+            moved.axpy(-1.0, Y)  # SNES' update
+            X.axpy(-alpha, d)
+            assert moved.norm(PETSc.NormType.NORM_INFINITY) > 0
+            X.axpy(-1.0, moved)
+            assert X.norm(PETSc.NormType.NORM_INFINITY) <= 1e-12 * s.x.norm(
+                PETSc.NormType.NORM_INFINITY)
+    on, off = records[default], records[0]
+    assert on["converged"] and off["converged"]
+    assert on["iterations"] <= 15 < off["iterations"]  # measured 14 and 32
+    assert on["nonmonotone_steps"] >= 1 and on["nonmonotone_returns"] == 0
+    assert off["nonmonotone_steps"] == 0
+    diff = np.sqrt(np.sum(q.weights * np.sum((jumps[0] - jumps[default]) ** 2, 1))
+                   / np.sum(q.weights * np.sum(jumps[0] ** 2, 1)))
+    assert diff < 1e-6  # measured 5e-8 on the written face means
 
 
 @pytest.mark.parametrize("formulation, degree", [("nitsche", 1), ("mean_nitsche", 1),

@@ -188,6 +188,7 @@ class MechanicsPhysics:
                 # 3D: face-mean formulations cycle between active sets without it; in 2D it
                 # costs Newton iterations on the coupled six-fracture scene (docs/mechanics3d.md)
                 one_sided=fm.msh.topology.dim == 3,
+                curved=not model.params.piecewise_affine,
             )
         self._log_linear_solver()
         self.linear_totals = {"krylov_iterations": 0, "preconditioner_setups": 0,
