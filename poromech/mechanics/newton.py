@@ -93,8 +93,8 @@ log = logging.getLogger("poromech")
 #: Newton iterations within which a run of full steps on a smooth piece (taken against the
 #: merit, see the module docstring) must bring the merit below its value before the run, or the
 #: iterate goes back. ``mixed`` P2 on configs/network3d.yaml at mesh scale 2 (15k unknowns):
-#: the compression step took 14 iterations instead of 32 with three such steps, each paid off
-#: at the next iteration.
+#: the compression step took 14 iterations instead of 32 with two such steps, each paid off at
+#: the next iteration (docs/mechanics3d.md, "Full steps on a smooth piece").
 NONMONOTONE_STEPS = 3
 
 #: Defaults for the mechanics SNES/KSP (prefix ``mech_``); scene ``solver.petsc`` and the command
