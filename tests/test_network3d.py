@@ -248,7 +248,7 @@ def test_network_mixed_p2_full_steps_on_a_smooth_piece(monkeypatch):
             s.snes.computeFunction(X, s.b)
             f = step._merit(s.b)
             step._anchor_f, step._run = f, s.ls.nonmonotone
-            alpha = step._choose_step(s.snes, X, None, d, f)[0]
+            alpha = step._choose_step(s.snes, X, d, f)[0]
             moved = X.copy()
             moved.axpy(1.0, d)  # the iterate after the run: somewhere else
             assert step._back_to_anchor(s.snes, moved, Y) == 1.0

@@ -698,7 +698,7 @@ class _NewtonStep:
             else:
                 self._run += 1
         before = (self.watchdog, self.forced_reason)
-        alpha, _, full = self._choose_step(snes, X, F, Y, f0, nonmonotone=True)
+        alpha, full = self._choose_step(snes, X, Y, f0, nonmonotone=True)
         if full:
             return alpha
         nan = PETSc.SNES.ConvergedReason.DIVERGED_FUNCTION_NANORINF
@@ -710,7 +710,7 @@ class _NewtonStep:
         Z = self._one_sided(snes, X, F, Y)
         if Z is not None:
             self.watchdog, self.forced_reason = before
-            beta = self._choose_step(snes, X, F, Z, f0)[0]
+            beta = self._choose_step(snes, X, Z, f0)[0]
             if self.watchdog == 0:  # Armijo
                 Z.copy(Y)
                 self._one_sided_run += 1
@@ -743,47 +743,47 @@ class _NewtonStep:
             return None
         return self._direction
 
-    def _choose_step(self, snes, X, F, Y, f0: float, nonmonotone: bool = False
-                     ) -> tuple[float, float, bool]:
-        """Step length, its merit, and whether it is a full step taken against the merit.
+    def _choose_step(self, snes, X, Y, f0: float, nonmonotone: bool = False
+                     ) -> tuple[float, bool]:
+        """Step length, and whether it is a full step taken against the merit.
 
         The step length is 0 when the search gives up. The full step is taken when it
         satisfies Armijo's condition; otherwise the best step of a search of ``‖F(x - αY)‖`` on
         ``(0, 1)`` (:meth:`_minimize`), when it satisfies it; with ``nonmonotone``, the full
         step instead when no trial of the search switched a contact point
-        (:meth:`_smooth_full_step`).
+        (:meth:`_record_full_step`).
         """
         p = self.s.ls
         f1 = self._norm_at(snes, X, Y, 1.0)
         if np.isfinite(f1) and f1 <= (1 - p.armijo) * f0:
             self.watchdog = 0
-            return 1.0, f1, False
+            return 1.0, False
         self._smooth = nonmonotone and self._may_run() and self._same_states_at_trial()
         fa, alpha = self._minimize(snes, X, Y, f1)
         smooth, self._smooth = self._smooth, False
         if smooth and np.isfinite(f1):
-            self._smooth_full_step(X, Y, f0, f1)
-            return 1.0, f1, True
+            self._record_full_step(X, Y, f0, f1)
+            return 1.0, True
         if fa <= (1 - p.armijo * alpha) * f0:
             self.watchdog = 0
-            return alpha, fa, False
+            return alpha, False
         self.watchdog += 1
         if not np.isfinite(fa):  # every trial residual is NaN or infinite
             self.forced_reason = PETSc.SNES.ConvergedReason.DIVERGED_FUNCTION_NANORINF
-            return 0.0, f0, False
+            return 0.0, False
         if self.watchdog > p.max_watchdog:
             self.forced_reason = PETSc.SNES.ConvergedReason.DIVERGED_LINE_SEARCH
-            return 0.0, f0, False
-        return alpha, fa, False
+            return 0.0, False
+        return alpha, False
 
     def _may_run(self) -> bool:
-        """Whether a full step against the merit is allowed now (see :meth:`_smooth_full_step`)."""
+        """Whether a full step against the merit is allowed now (see :meth:`_record_full_step`)."""
         s = self.s
         return (s.ls.nonmonotone > 0 and s.states is not None
                 and (self._anchor_f is None or self._run < s.ls.nonmonotone))
 
-    def _smooth_full_step(self, X, Y, f0: float, f1: float) -> None:
-        """Take the full step to ``X - Y`` (merit ``f1 > f0``) against the merit.
+    def _record_full_step(self, X, Y, f0: float, f1: float) -> None:
+        """Record the full step to ``X - Y`` (merit ``f1 > f0``) taken against the merit.
 
         Only on a curved contact law (``nonmonotone``), within the run's iterations, when no
         trial of the search switched a contact point. The first such step anchors the run at
@@ -805,7 +805,7 @@ class _NewtonStep:
         """
         f_anchor, self._anchor_f = self._anchor_f, None
         self.s.record.nonmonotone_returns += 1
-        alpha = self._choose_step(snes, self._anchor_x, None, self._anchor_y, f_anchor)[0]
+        alpha = self._choose_step(snes, self._anchor_x, self._anchor_y, f_anchor)[0]
         log.debug("%sNewton: full steps on a smooth piece did not pay off; back to the "
                   "iterate before them, step %.3g along its direction", self.s.prefix, alpha)
         Y.waxpy(-1.0, self._anchor_x, X)
