@@ -280,6 +280,46 @@ def test_the_level_smoother_is_chosen_at_each_set_up(monkeypatch, cost, kept):
         assert err[key] == pytest.approx(direct["err"][key], rel=1e-6)
 
 
+def test_lost_smoother_trials_make_the_next_ones_rarer(monkeypatch):
+    """A set-up at every Newton iteration (``solver.reuse_jacobian: false``) and trials that
+    cannot win (Jacobi given an eighth of SOR's iterations): after the k-th lost trial in a
+    row the next TRIAL_BACKOFF**k - 1 set-ups keep SOR without a trial, and the slip is
+    MUMPS'. Tried at every set-up, the trials would be as many as the set-ups."""
+    import poromech.mechanics.linear as linear
+
+    monkeypatch.setattr(linear, "SWITCH_GAIN", 20.0)
+    monkeypatch.setattr(linear, "TRIAL_BACKOFF", 2)
+    set_ups, trials = [], []  # set-ups of the Jacobians; the set-up each trial follows
+    set_up = linear.IterativeSolver._set_up
+
+    def counted_set_up(self, record, rebuild=False):
+        if not rebuild:
+            set_ups.append(len(set_ups))
+        elif self.smoother == "jacobi":  # a trial's preconditioner (SOR's rebuild follows)
+            trials.append(len(set_ups) - 1)
+        return set_up(self, record, rebuild)
+
+    monkeypatch.setattr(linear.IterativeSolver, "_set_up", counted_set_up)
+    sets = COARSE + COULOMB_SLIP + ["contact.formulation=nitsche"]
+    scene = load_scene(SHEAR, sets + ["solver.linear_solver=iterative",
+                                      "solver.reuse_jacobian=false"])
+    with Run(scene) as run:
+        run.execute()
+        physics = run.physics
+        assert physics.solver.record.converged
+        assert physics.solver.linear.smoother == "sor"
+        assert level_smoothers(physics) == {"sor"}  # SOR's preconditioner built again
+        # each lost trial: its set-up and SOR's again
+        assert physics.linear_totals["preconditioner_setups"] == len(set_ups) + 2 * len(trials)
+        err = jump_errors(physics.model.u, physics.fm, exact_jump(scene))
+    assert len(set_ups) >= 4
+    # trials after set-ups 0, 2 (1 skipped), 6 (3 skipped), 14 (7 skipped), ...
+    assert trials == [k for k in (0, 2, 6, 14, 30, 62) if k < len(set_ups)]
+    direct = solve(SHEAR, sets)
+    for key in ("l2", "l2_t", "max"):
+        assert err[key] == pytest.approx(direct["err"][key], rel=1e-6)
+
+
 def test_a_level_smoother_in_the_options_is_not_chosen():
     scene = load_scene(SHEAR, COARSE + COULOMB_SLIP + ["solver.linear_solver=iterative",
                                                        "solver.petsc={mg_levels_pc_type: sor}"])

@@ -159,7 +159,8 @@ LAG_EXTRA = 5
 
 
 #: The level smoother of GAMG on a contact Jacobian (GMRES) whose options name none
-#: (``mg_levels_pc_type``) is chosen at every set-up of the preconditioner: the system is solved
+#: (``mg_levels_pc_type``) is chosen at set-ups of the preconditioner (:data:`TRIAL_BACKOFF`
+#: says at which): the system is solved
 #: with the current smoother (SOR at first), then with the other one within the iterations at
 #: which its solve costs less than 1/:data:`SWITCH_GAIN` of the current one's, and the other
 #: is kept if it converges there. ``JACOBI_COST`` is the cost of a GMRES iteration with Jacobi
@@ -177,6 +178,15 @@ JACOBI_COST = 0.4
 #: run 506 s against 1,399 s with SOR alone), on the network SOR (707 GMRES iterations against
 #: 3,417 with Jacobi throughout; docs/mechanics3d.md, "Contact Jacobians").
 SWITCH_GAIN = 1.6
+#: A trial that keeps the smoother makes the next ones rarer: after the k-th such trial in a
+#: row, the next ``TRIAL_BACKOFF**k - 1`` set-ups keep the smoother without a trial (a switch,
+#: or a failed solve, makes the next set-up try again). Which smoother wins is a property of the
+#: system's class more than of one Jacobian, and a lost trial costs its solve (up to 0.625 of the
+#: kept smoother's) and two set-ups. Tried at every set-up, the lost trials took the 1.02M-
+#: unknown network to 1,936 s and 9 set-ups (2,818 GMRES iterations); with this rule 1,516 s
+#: and 4 (2,169), the same Newton iterations (docs/mechanics3d.md, "A million unknowns").
+#: The trials of a run grow with the logarithm of its set-ups.
+TRIAL_BACKOFF = 4
 #: The level smoothers chosen between, the first one first.
 SMOOTHERS = ("sor", "jacobi")
 
@@ -518,9 +528,10 @@ class IterativeSolver:
             attached as its near-nullspace; None: none.
         reuse: Keep the preconditioner for an assembled Jacobian equal to the set-up one
             (``solver.reuse_jacobian``); False: set it up for every assembled Jacobian.
-        choose_smoother: Choose GAMG's level smoother between :data:`SMOOTHERS` at every
-            set-up (:data:`SWITCH_GAIN`), and switch to the other one when a solve after a
-            set-up fails; False: the options' smoother.
+        choose_smoother: Choose GAMG's level smoother between :data:`SMOOTHERS` at the
+            set-ups (:data:`SWITCH_GAIN`, fewer after trials that kept it:
+            :data:`TRIAL_BACKOFF`), and switch to the other one when a solve after a set-up
+            fails; False: the options' smoother.
     """
 
     def __init__(self, ksp: PETSc.KSP, A: PETSc.Mat,
@@ -532,6 +543,8 @@ class IterativeSolver:
         #: GAMG's level smoother held at each set-up (None: the options'); see :meth:`solve`.
         self.smoother: str | None = SMOOTHERS[0] if choose_smoother else None
         self._chosen = 0  # choices made (the first is logged)
+        self._kept = 0  # trials in a row that kept the smoother (TRIAL_BACKOFF)
+        self._untried = 0  # set-ups left that keep the smoother without a trial
         self.nullspace = None if modes is None else near_nullspace(A, modes)
         self.near_nullspace_size = 0 if modes is None else len(modes)
         self._fresh = True  # a Jacobian was assembled since the last set-up
@@ -606,8 +619,10 @@ class IterativeSolver:
         its = ksp.getIterationNumber()
         record.linear_iterations += its
         converged = ksp.getConvergedReason() > 0
-        if changed and self.smoother is not None:  # chosen at each set-up (SWITCH_GAIN)
-            if converged:
+        if changed and self.smoother is not None:  # chosen at set-ups (SWITCH_GAIN)
+            if converged and self._untried > 0:
+                self._untried -= 1
+            elif converged:
                 its = self._choose(F, Y, its, record)  # the kept smoother's solve converged
             else:
                 its, converged = self._switch(F, Y, record)
@@ -646,6 +661,10 @@ class IterativeSolver:
         The system, solved in ``its`` iterations with :attr:`smoother`, is solved again with the
         other one of :data:`SMOOTHERS` within the iterations at which it costs less than
         1/:data:`SWITCH_GAIN` of the first solve; the other one is kept if it converges there.
+        A lost trial builds the current smoother's preconditioner again. Building the trial's
+        beside it instead (and putting the current one back) saved no measurable time on the
+        1.02M-unknown network (1,532 s against 1,516 s) and held both hierarchies at once
+        (peak 9.2 GB against 7.5).
 
         Returns:
             The iterations of the kept smoother's solve (its direction is in ``Y``).
@@ -674,8 +693,11 @@ class IterativeSolver:
                 "with %s, %d with %s; taken within %d)", other if won else current,
                 trial if won else f"more than {trial}", other, its, current, cap)
         if won:
+            self._kept = self._untried = 0
             kept.destroy()
             return trial
+        self._kept += 1
+        self._untried = TRIAL_BACKOFF**self._kept - 1
         kept.copy(Y)
         kept.destroy()
         self.smoother = current
@@ -690,6 +712,7 @@ class IterativeSolver:
         """
         failed = self.smoother
         self.smoother = _other_smoother(failed)
+        self._kept = self._untried = 0
         if self.comm.rank == 0:
             log.info("GAMG level smoother: %s (the solve with %s failed: %s)",
                      self.smoother, failed, ksp_reason_name(self.ksp.getConvergedReason()))
