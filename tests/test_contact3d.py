@@ -258,7 +258,7 @@ def level_smoothers(physics) -> set[str]:
 
 
 @pytest.mark.parametrize(("cost", "kept"), [(1e-6, "jacobi"), (1e6, "sor")])
-def test_the_level_smoother_is_chosen_at_each_set_up(monkeypatch, cost, kept):
+def test_the_level_smoother_is_chosen_at_a_set_up(monkeypatch, cost, kept):
     """GMRES + GAMG on a contact Jacobian without a smoother in the options: at a set-up the
     system is solved with the current smoother (SOR at first), then with the other one within
     the iterations at which it costs less (JACOBI_COST, SWITCH_GAIN); the kept smoother is the
