@@ -330,7 +330,7 @@ def test_iterative_on_a_piece_held_only_by_contact(formulation):
 def test_forcing_term_of_the_inexact_newton():
     """The Krylov tolerance: loose far from the solution, following the observed rate, never
     tighter than the options' nor than the Newton's tolerance needs (0.1 of its target)."""
-    from poromech.mechanics.linear import FORCING_MAX, forcing_term
+    from poromech.mechanics.linear import FORCING_MAX, FORCING_SWITCHED, forcing_term
 
     assert forcing_term(1.0, None, 1e-10, 1e-11) == FORCING_MAX  # first iteration
     assert forcing_term(1e-2, 1.0, 1e-10, 1e-11) == pytest.approx(0.9e-4)  # γ (1e-2)²
@@ -343,3 +343,8 @@ def test_forcing_term_of_the_inexact_newton():
     assert forcing_term(1e3, None, 1e2, 1e-11) == pytest.approx(1e-2)
     # below the target (a step the Newton is made to take) it stays at FORCING_MAX
     assert forcing_term(50.0, None, 1e2, 1e-11) == FORCING_MAX
+    # after a step that switched many contact points: bounded by FORCING_SWITCHED instead
+    assert forcing_term(1.0, 0.5, 1e-10, 1e-11, switched=True) == FORCING_SWITCHED
+    assert forcing_term(0.1, 1.0, 1e-10, 1e-11, switched=True) == pytest.approx(0.9e-2)
+    assert forcing_term(1e-3, 1.0, 1e-10, 1e-11, switched=True) == pytest.approx(0.9e-6)
+    assert forcing_term(1.0, None, 1e-10, 1e-11, switched=True) == FORCING_MAX  # first

@@ -83,7 +83,12 @@ from dolfinx.fem.petsc import assemble_residual, assign, create_matrix, create_v
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from poromech.mechanics.linear import LinearStrategy, forcing_term, linear_strategy
+from poromech.mechanics.linear import (
+    SWITCHED_FRACTION,
+    LinearStrategy,
+    forcing_term,
+    linear_strategy,
+)
 from poromech.petsc_options import PrefixedOptions, reason_name
 
 __all__ = ["ConvergenceError", "NewtonRecord", "SemiSmoothNewton", "DEFAULT_OPTIONS"]
@@ -142,6 +147,7 @@ class NewtonRecord:
     one_sided: int = 0
     nonmonotone_steps: int = 0
     nonmonotone_returns: int = 0
+    switched_solves: int = 0
 
     def as_dict(self) -> dict:
         """JSON-ready summary."""
@@ -276,6 +282,7 @@ class SemiSmoothNewton:
         self.reference_norm = 0.0
         self._min_iterations = 0
         self._last_states = None  # active set of the current iterate
+        self.contact_points = 0  # contact points (or faces) of the scene, counted at a solve
         self._jacobian_states = None  # active set of the assembled Jacobian
         self.condensed = None
         self.prefix = prefix
@@ -489,6 +496,8 @@ class SemiSmoothNewton:
                 self.record.active_set_changes.append(
                     int(self.comm.allreduce(int(np.count_nonzero(s != self._last_states))))
                 )
+            elif it == 0:
+                self.contact_points = int(self.comm.allreduce(s.size))
             self._last_states = s
         if log.isEnabledFor(logging.DEBUG):  # with the step taken and the states it switched
             r, extra = self.record, ""
@@ -627,8 +636,11 @@ class _NewtonStep:
         if s.inexact and hasattr(s.linear, "set_tolerance"):  # as accurate as Newton needs
             res = s.record.residuals
             target = snes.getTolerances()[0] * s.reference_norm
+            changes = s.record.active_set_changes
+            switched = bool(changes) and changes[-1] > SWITCHED_FRACTION * s.contact_points
+            s.record.switched_solves += switched
             s.linear.set_tolerance(forcing_term(res[-1], res[-2] if len(res) > 1 else None,
-                                                target, s.linear.tightest))
+                                                target, s.linear.tightest, switched))
         solved = s.linear.solve(F, Y, s.record, s.active_set)
         s.record.time_linear += time.perf_counter() - t0
         if not solved:
