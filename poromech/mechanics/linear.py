@@ -155,7 +155,7 @@ FORCING_MARGIN = 0.1
 #: solved only as far as ``γ (‖F_k‖/‖F_{k-1}‖)²`` asks, up to this bound, instead of
 #: :data:`FORCING_MAX`. Such steps are the damped ones of a shear step, where the search takes
 #: ``α`` of 0.1–0.5 of a direction solved to 1e-4. Eleven-fracture network, ``nitsche`` P2: at
-#: 1.02M unknowns (2 ranks, 5 steps) 1,200 s against 1,516 s, 1,635 GMRES iterations against
+#: 1.02M unknowns (2 ranks, 5 steps) 1,199 s against 1,516 s, 1,635 GMRES iterations against
 #: 2,169, Newton 10/16/11/14/22 against 10/16/11/11/23; on the level-2 mesh (257k, 2 steps)
 #: 442 against 597 and 170 s against 211 s, the same Newton 10/15. A bound of 0.1 took as long
 #: at 1.02M (1,197 s, 1,544 GMRES iterations) with more Newton iterations (11/16/13/16/22),
@@ -248,7 +248,7 @@ def forcing_term(fnorm: float, previous: float | None, target: float, floor: flo
         the tolerance needs. An iteration below the target (a Newton made to take a step)
         keeps at most :data:`FORCING_MAX`.
     """
-    bound = FORCING_SWITCHED if switched and previous else FORCING_MAX
+    bound = FORCING_SWITCHED if switched else FORCING_MAX
     eta = FORCING_MAX if not previous else min(bound, FORCING_GAMMA * (fnorm / previous) ** 2)
     if fnorm > target:
         eta = max(eta, FORCING_MARGIN * target / fnorm)
