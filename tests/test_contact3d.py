@@ -251,6 +251,10 @@ def test_face_elimination_on_two_ranks_equals_one_rank():
         assert one["err"][key] == pytest.approx(direct["err"][key], rel=1e-6)
 
 
+#: GAMG on the P2 Jacobian instead of the p-multigrid (the smoother choice is GAMG's).
+GAMG_ON_P2 = "solver.petsc={pc_type: gamg}"
+
+
 def level_smoothers(physics) -> set[str]:
     """The PC types of GAMG's level smoothers in the mechanics KSP."""
     pc = physics.solver.snes.getKSP().getPC()
@@ -267,7 +271,7 @@ def test_the_level_smoother_is_chosen_at_a_set_up(monkeypatch, cost, kept):
 
     monkeypatch.setattr(linear, "JACOBI_COST", cost)
     sets = COARSE + COULOMB_SLIP + ["contact.formulation=nitsche"]
-    scene = load_scene(SHEAR, sets + ["solver.linear_solver=iterative"])
+    scene = load_scene(SHEAR, sets + ["solver.linear_solver=iterative", GAMG_ON_P2])
     with Run(scene) as run:
         run.execute()
         physics = run.physics
@@ -301,7 +305,7 @@ def test_lost_smoother_trials_make_the_next_ones_rarer(monkeypatch):
 
     monkeypatch.setattr(linear.IterativeSolver, "_set_up", counted_set_up)
     sets = COARSE + COULOMB_SLIP + ["contact.formulation=nitsche"]
-    scene = load_scene(SHEAR, sets + ["solver.linear_solver=iterative",
+    scene = load_scene(SHEAR, sets + ["solver.linear_solver=iterative", GAMG_ON_P2,
                                       "solver.reuse_jacobian=false"])
     with Run(scene) as run:
         run.execute()
@@ -321,8 +325,8 @@ def test_lost_smoother_trials_make_the_next_ones_rarer(monkeypatch):
 
 
 def test_a_level_smoother_in_the_options_is_not_chosen():
-    scene = load_scene(SHEAR, COARSE + COULOMB_SLIP + ["solver.linear_solver=iterative",
-                                                       "solver.petsc={mg_levels_pc_type: sor}"])
+    scene = load_scene(SHEAR, COARSE + COULOMB_SLIP + [
+        "solver.linear_solver=iterative", "solver.petsc={pc_type: gamg, mg_levels_pc_type: sor}"])
     with Run(scene) as run:
         run.execute()
         assert run.physics.solver.linear.smoother is None

@@ -124,6 +124,32 @@ def test_rigid_body_modes_are_the_kernel_of_the_cracked_elastic_operator(scene):
     assert comm.allreduce(len(plus)) > 0 and y.norm() > 1e-6 * norm_a * z.norm()
 
 
+def test_p_multigrid_coarse_level_is_the_p1_space_of_the_cracked_mesh():
+    """The p-multigrid's interpolation maps any P1 function of the cracked space, one that
+    jumps across the crack included (random dof values), to the same function in P2; so the
+    Galerkin operator ``Pᵀ A₂ P`` of the P2 stiffness is the P1 stiffness of the cracked
+    space (to round-off), with no entry between the two sides of the crack. It fails if the
+    interpolation joined the sides (``P`` of the uncracked space) or lost a component."""
+    from poromech.mechanics.multigrid import p1_interpolation
+
+    comm = MPI.COMM_WORLD
+    fm = build_mesh(load_scene(PENNY, COARSE), comm)
+    V2, V1 = cracked_space(fm, 2), cracked_space(fm, 1)
+    P = p1_interpolation(V2, V1)
+    u1, u2 = fem.Function(V1), fem.Function(V2)
+    u1.x.array[:] = np.random.default_rng(comm.rank).random(u1.x.array.size)
+    u1.x.scatter_forward()
+    u2.interpolate(u1)
+    y = P.createVecLeft()
+    P.mult(u1.x.petsc_vec, y)
+    n2 = V2.dofmap.index_map.size_local * V2.dofmap.index_map_bs
+    assert np.abs(y.getArray() - u2.x.array[:n2]).max() < 1e-12
+    A1, A2 = _elastic_operator(V1), _elastic_operator(V2)
+    G = A2.ptap(P)
+    G.axpy(-1.0, A1, structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
+    assert G.norm(PETSc.NormType.FROBENIUS) < 1e-10 * A1.norm(PETSc.NormType.FROBENIUS)
+
+
 SERIAL_VS_PARALLEL = """
 import sys, json
 sys.path.insert(0, "tests")

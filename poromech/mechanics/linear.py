@@ -37,6 +37,7 @@ from dolfinx import fem
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from poromech.mechanics.multigrid import PMultigrid
 from poromech.petsc_options import PrefixedOptions, ksp_reason_name
 
 log = logging.getLogger("poromech")
@@ -49,6 +50,7 @@ __all__ = [
     "IterativeSolver",
     "JACOBI_COST",
     "LinearStrategy",
+    "P_MULTIGRID_OPTIONS",
     "STALE_BUDGET",
     "STALE_MAX_CHANGES",
     "STALE_MAX_IT",
@@ -255,20 +257,40 @@ def forcing_term(fnorm: float, previous: float | None, target: float, floor: flo
     return float(max(eta, floor))
 
 
-def iterative_options(symmetric: bool) -> dict[str, object]:
+#: The coarse (P1) solve of the p-multigrid (:mod:`poromech.mechanics.multigrid`), options
+#: under ``mg_coarse_``: one V-cycle of GAMG as in :data:`ITERATIVE_OPTIONS`, SOR on its levels
+#: (Jacobi there took 942 GMRES iterations and 123 s against 529 and 86 s on the 257k-unknown
+#: network, the first two load steps).
+P_MULTIGRID_OPTIONS: dict[str, object] = {
+    "pc_type": "mg",
+    "mg_coarse_ksp_type": "preonly",
+    "mg_coarse_pc_type": "gamg",
+    "mg_coarse_pc_gamg_agg_nsmooths": 1,
+    "mg_coarse_pc_gamg_threshold": 0.0,
+    "mg_coarse_pc_gamg_coarse_eq_limit": 1000,
+    "mg_coarse_mg_levels_ksp_type": "chebyshev",
+    "mg_coarse_mg_levels_pc_type": "sor",
+}
+
+
+def iterative_options(symmetric: bool, p_multigrid: bool = False) -> dict[str, object]:
     """PETSc defaults of the iterative solve: CG, or GMRES for a non-symmetric Jacobian.
 
     Args:
         symmetric: The Jacobian is symmetric (open fractures); the semi-smooth Jacobian of
             Nitsche contact in general is not (``θ ≠ 1``, friction).
+        p_multigrid: Precondition a non-symmetric (contact) Jacobian of P2 displacements by
+            the p-multigrid (:data:`P_MULTIGRID_OPTIONS`) instead of GAMG on P2.
     """
     if symmetric:
         return dict(ITERATIVE_OPTIONS)
     # right preconditioning: GMRES then measures the unpreconditioned residual, as CG does;
     # no level smoother: IterativeSolver chooses SOR or Jacobi at each set-up (SWITCH_GAIN),
-    # unless the scene or the command line names one
-    return {**ITERATIVE_OPTIONS, "ksp_type": "gmres", "ksp_pc_side": "right",
-            "ksp_gmres_restart": 200, "mg_levels_pc_type": None}
+    # unless the scene or the command line names one; the p-multigrid's fine level has its own
+    # default (multigrid.FINE_SMOOTHER)
+    gmres = {**ITERATIVE_OPTIONS, "ksp_type": "gmres", "ksp_pc_side": "right",
+             "ksp_gmres_restart": 200, "mg_levels_pc_type": None}
+    return {**gmres, **P_MULTIGRID_OPTIONS} if p_multigrid else gmres
 
 
 def rigid_body_modes(V: fem.FunctionSpace) -> npt.NDArray[np.float64]:
@@ -556,13 +578,18 @@ class IterativeSolver:
             set-ups (:data:`SWITCH_GAIN`, fewer after trials that kept it:
             :data:`TRIAL_BACKOFF`), and switch to the other one when a solve after a set-up
             fails; False: the options' smoother.
+        multigrid: The p-multigrid configured on the KSP
+            (:class:`~poromech.mechanics.multigrid.PMultigrid`): its coarse operator is formed
+            at each set-up, and a changed Jacobian always gets a new set-up (never
+            :attr:`lagged`: a set-up costs about two GMRES iterations).
     """
 
     def __init__(self, ksp: PETSc.KSP, A: PETSc.Mat,
                  modes: npt.NDArray[np.float64] | None = None, reuse: bool = True,
-                 choose_smoother: bool = False):
+                 choose_smoother: bool = False, multigrid: PMultigrid | None = None):
         self.ksp, self.A, self.comm = ksp, A, A.getComm().tompi4py()
         self.reuse = reuse
+        self.multigrid = multigrid
         choose_smoother = choose_smoother and ksp.getPC().getType() == PETSc.PC.Type.GAMG
         #: GAMG's level smoother held at each set-up (None: the options'); see :meth:`solve`.
         self.smoother: str | None = SMOOTHERS[0] if choose_smoother else None
@@ -577,8 +604,7 @@ class IterativeSolver:
         self._probe.getArray()[:] = rng.random(self._probe.getLocalSize())
         self._fingerprint = None  # A z of the Jacobian of the last set-up
         self._rtol = ksp.getTolerances()[0]
-        #: Solve a changed Jacobian with the last preconditioner first (see :meth:`solve`).
-        self.lagged = False
+        self._lagged = False
         self._rate = None  # Krylov iterations per decade of the solve after the last set-up
         # residual norms of each solve (reset per solve), quoted when one fails
         ksp.setConvergenceHistory(length=ksp.getTolerances()[3] + 1, reset=True)
@@ -586,6 +612,19 @@ class IterativeSolver:
     def assembled(self, states: npt.NDArray | None) -> None:
         """A new Jacobian is in the matrix: compared with the set-up one at the next solve."""
         self._fresh = True
+
+    @property
+    def lagged(self) -> bool:
+        """Solve a changed Jacobian with the last preconditioner first (see :meth:`solve`).
+
+        Never with the p-multigrid, whose set-up is cheap: on the 257k-unknown network (first
+        two load steps) lagging it took 124 s against 86 s.
+        """
+        return self._lagged
+
+    @lagged.setter
+    def lagged(self, value: bool) -> None:
+        self._lagged = value and self.multigrid is None
 
     @property
     def tightest(self) -> float:
@@ -669,7 +708,9 @@ class IterativeSolver:
         # the levels read their smoother at every set-up; when it is chosen here, no option
         # names it (linear_strategy), so it is pushed for the set-up and removed after
         with PrefixedOptions(ksp.getOptionsPrefix() or "", {"mg_levels_pc_type": self.smoother}):
-            if rebuild:  # GAMG keeps its smoothers and their eigenvalue estimates otherwise
+            if self.multigrid is not None:
+                self.multigrid.set_up(self.A)
+            elif rebuild:  # GAMG keeps its smoothers and their eigenvalue estimates otherwise
                 pc.setType(PETSc.PC.Type.NONE)
                 pc.setType(PETSc.PC.Type.GAMG)
                 pc.setFromOptions()
@@ -754,8 +795,8 @@ class IterativeSolver:
         self._fingerprint = None
 
     def destroy(self) -> None:
-        """Free the fingerprint vectors and the near-nullspace."""
-        for obj in (self._probe, self._fingerprint, self.nullspace):
+        """Free the fingerprint vectors, the near-nullspace and the p-multigrid's matrices."""
+        for obj in (self._probe, self._fingerprint, self.nullspace, self.multigrid):
             if obj is not None:
                 obj.destroy()
 
@@ -786,12 +827,13 @@ class FaceElimination:
         sizes: Owned entries of each block in order (``u`` first).
         face_block_sizes: Components per face of each face unknown (e.g. ``(3, 6)``).
         modes: Rigid-body modes of the displacement space (:func:`rigid_body_modes`).
-        reuse, choose_smoother: See :class:`IterativeSolver`.
+        reuse, choose_smoother, multigrid: See :class:`IterativeSolver` (the p-multigrid's
+            interpolation is that of the displacements, the rows of ``S``).
     """
 
     def __init__(self, ksp: PETSc.KSP, A: PETSc.Mat, sizes: list[int],
                  face_block_sizes: list[int], modes: npt.NDArray[np.float64], reuse: bool = True,
-                 choose_smoother: bool = False):
+                 choose_smoother: bool = False, multigrid: PMultigrid | None = None):
         self.A, self.comm = A, A.getComm().tompi4py()
         start = A.getOwnershipRange()[0]
         nu, nf = sizes[0], sum(sizes[1:])
@@ -816,6 +858,7 @@ class FaceElimination:
         self._vecs = None
         self._ksp, self._reuse, self._modes = ksp, reuse, modes
         self._choose_smoother = choose_smoother
+        self.multigrid = multigrid
         self._rtol = ksp.getTolerances()[0]
         #: Passed to the :class:`IterativeSolver` of ``S``.
         self.lagged = False
@@ -834,7 +877,8 @@ class FaceElimination:
             self.S = self._sub["uu"].duplicate(copy=True)
             self.S.axpy(-1.0, self._P, structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
             self.inner = IterativeSolver(self._ksp, self.S, self._modes, reuse=self._reuse,
-                                         choose_smoother=self._choose_smoother)
+                                         choose_smoother=self._choose_smoother,
+                                         multigrid=self.multigrid)
             self.inner.lagged = self.lagged
         else:
             self.S.zeroEntries()
@@ -918,6 +962,8 @@ class FaceElimination:
         """Free the blocks, ``S``, the work vectors and the index sets."""
         if self.inner is not None:
             self.inner.destroy()
+        elif self.multigrid is not None:
+            self.multigrid.destroy()
         objs = [*self._sub.values(), self._inv, self._T, self._P, self.S, self.is_u, self.is_f,
                 *(self._vecs or ())]
         for obj in objs:
@@ -927,7 +973,9 @@ class FaceElimination:
 
 def linear_strategy(ksp: PETSc.KSP, A: PETSc.Mat, prefix: str, *, reuse: bool, stale: bool,
                     modes: Callable[[], npt.NDArray[np.float64]] | None = None,
-                    blocks: tuple[list[int], list[int]] | None = None) -> LinearStrategy:
+                    blocks: tuple[list[int], list[int]] | None = None,
+                    coarse: Callable[[], tuple[PETSc.Mat, npt.NDArray[np.float64]]] | None = None,
+                    ) -> LinearStrategy:
     """The strategy for the KSP as its options configured it (call with the options pushed).
 
     Args:
@@ -941,13 +989,21 @@ def linear_strategy(ksp: PETSc.KSP, A: PETSc.Mat, prefix: str, *, reuse: bool, s
         blocks: For a Jacobian with face unknowns: the owned entries of each block (``u``
             first) and the components per face of each face unknown; a Krylov KSP then solves
             the displacement Schur complement (:class:`FaceElimination`).
+        coarse: Computes the interpolation from the P1 space into the displacements and the
+            P1 rigid-body modes; called when the options name ``pc_type mg``, the p-multigrid
+            (:class:`~poromech.mechanics.multigrid.PMultigrid`).
     """
     if is_direct(ksp):
         return DirectSolver(ksp, A, prefix, reuse=reuse, stale=stale)
     # the level smoother is chosen by the solver unless the options name one
     choose = not PETSc.Options().hasName(f"{prefix}mg_levels_pc_type")
+    multigrid = None
+    if ksp.getPC().getType() == PETSc.PC.Type.MG:
+        if coarse is None:
+            raise ValueError(f"{prefix}pc_type mg: the p-multigrid needs P2 displacements")
+        multigrid = PMultigrid(ksp, *coarse(), near_nullspace)
     if blocks is not None:
         return FaceElimination(ksp, A, blocks[0], blocks[1], modes(), reuse=reuse,
-                               choose_smoother=choose)
+                               choose_smoother=choose, multigrid=multigrid)
     return IterativeSolver(ksp, A, None if modes is None else modes(), reuse=reuse,
-                           choose_smoother=choose)
+                           choose_smoother=choose, multigrid=multigrid)

@@ -215,6 +215,9 @@ class SemiSmoothNewton:
         modes: Computes the rigid-body modes of a displacement-only system
             (:func:`~poromech.mechanics.linear.rigid_body_modes`); called when the options
             configure a Krylov solve, whose matrix then carries them as near-nullspace.
+        coarse: Computes the interpolation from P1 into the displacements and the P1
+            rigid-body modes, the coarse level of the p-multigrid (``pc_type mg``,
+            :mod:`~poromech.mechanics.multigrid`).
         eliminate_faces: A Krylov solve works on the displacement Schur complement, the face
             unknowns (every block after the first) eliminated face by face
             (:class:`~poromech.mechanics.linear.FaceElimination`).
@@ -254,6 +257,7 @@ class SemiSmoothNewton:
         constant_jacobian: bool = False,
         constant_bulk: tuple[fem.Form, Sequence[Sequence[fem.Form | None]]] | None = None,
         modes: Callable[[], np.ndarray] | None = None,
+        coarse: Callable[[], tuple[PETSc.Mat, np.ndarray]] | None = None,
         eliminate_faces: bool = False,
         inexact: bool = False,
         one_sided: bool = False,
@@ -289,7 +293,7 @@ class SemiSmoothNewton:
         self._eliminate_faces = eliminate_faces
         self.inexact = inexact
         self.snes, self.linear = self._create_snes(prefix, options or {}, stale_factorization,
-                                                   modes)
+                                                   modes, coarse)
         if inexact and reuse_jacobian and hasattr(self.linear, "lagged"):
             self.linear.lagged = True  # a Krylov solve keeps its preconditioner while it pays
         self._step = self.snes.getPythonContext() if self._is_python() else None
@@ -309,7 +313,8 @@ class SemiSmoothNewton:
         return self.snes.getType() == PETSc.SNES.Type.PYTHON
 
     def _create_snes(self, prefix: str, options: dict, stale: bool,
-                     modes: Callable[[], np.ndarray] | None
+                     modes: Callable[[], np.ndarray] | None,
+                     coarse: Callable[[], tuple[PETSc.Mat, np.ndarray]] | None = None,
                      ) -> tuple[PETSc.SNES, LinearStrategy]:
         snes = PETSc.SNES().create(self.comm)
         snes.setOptionsPrefix(prefix)
@@ -322,7 +327,8 @@ class SemiSmoothNewton:
             snes.setJacobian(self._jacobian, self.A, self.A)
             snes.setFromOptions()
             linear = linear_strategy(snes.getKSP(), self.A, prefix, reuse=self.reuse_jacobian,
-                                     stale=stale, modes=modes, blocks=self._face_blocks())
+                                     stale=stale, modes=modes, blocks=self._face_blocks(),
+                                     coarse=coarse)
         if snes.getType() == PETSc.SNES.Type.PYTHON:
             snes.setPythonContext(_NewtonStep(self))
         snes.setConvergenceTest(self._converged)

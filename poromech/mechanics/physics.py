@@ -32,10 +32,11 @@ from poromech.io.probes import open_probes
 from poromech.io.xdmf import XDMFSeries
 from poromech.mechanics.linear import is_direct, iterative_options, rigid_body_modes
 from poromech.mechanics.model import MechanicsModel, PressureCoupling
+from poromech.mechanics.multigrid import p1_interpolation
 from poromech.mechanics.newton import NewtonRecord, SemiSmoothNewton
 from poromech.mechanics.predictor import START_NAMES, StepPredictor, start_rule
 from poromech.mesh.entities import fracture_segments
-from poromech.mesh.fractured import FracturedMesh
+from poromech.mesh.fractured import FracturedMesh, cracked_space
 from poromech.physics import Keyed, StepResult
 from poromech.scene.resources import ELIMINATED_FORMULATIONS, mechanics_solver
 from poromech.scene.schema import Scene
@@ -56,15 +57,27 @@ WRITTEN_FACE_FIELDS_3D = ("jump_n", "jump_t", "jump_tx", "jump_ty", "jump_tz", "
 XDMF_ONLY_FACE_FIELDS = ("contact_fraction", "slip_fraction")
 
 
-def linear_solver_options(kind: str, formulation: str) -> dict:
+def linear_solver_options(kind: str, formulation: str, degree: int = 1) -> dict:
     """PETSc defaults of the linear solver ``kind`` (``direct``: the Newton's own, MUMPS).
 
     ``iterative``: CG + GAMG for open fractures (a symmetric positive definite Jacobian), GMRES
-    + GAMG for Nitsche contact (:func:`~poromech.mechanics.linear.iterative_options`).
+    for contact (:func:`~poromech.mechanics.linear.iterative_options`), preconditioned by GAMG
+    for P1 displacements and by the p-multigrid for P2 (:mod:`poromech.mechanics.multigrid`).
     """
     if kind == "direct":
         return {}
-    return iterative_options(symmetric=formulation == "none")
+    return iterative_options(symmetric=formulation == "none", p_multigrid=degree == 2)
+
+
+def p1_coarse(fm: FracturedMesh, V) -> tuple[PETSc.Mat, np.ndarray]:
+    """The p-multigrid's coarse level for the displacement space ``V`` (collective).
+
+    Returns:
+        The interpolation from the P1 space of the same cracked mesh into ``V``, and the P1
+        rigid-body modes.
+    """
+    V1 = cracked_space(fm, 1)
+    return p1_interpolation(V, V1), rigid_body_modes(V1)
 
 
 def floating_pieces(scene: Scene, fm: FracturedMesh) -> list[str]:
@@ -167,7 +180,8 @@ class MechanicsPhysics:
             self.linear_solver = mechanics_solver(scene, model.dof_count())
             eliminate = (self.linear_solver == "iterative"
                          and model.params.formulation in ELIMINATED_FORMULATIONS)
-            options = linear_solver_options(self.linear_solver, model.params.formulation)
+            options = linear_solver_options(self.linear_solver, model.params.formulation,
+                                            scene.degree)
             self.solver = SemiSmoothNewton(
                 model.F, model.J, model.unknowns, model.bcs, prefix="mech_",
                 options={**options,
@@ -183,6 +197,7 @@ class MechanicsPhysics:
                 constant_bulk=model.J_split if constant else None,
                 modes=(lambda: rigid_body_modes(model.V)) if (len(model.unknowns) == 1
                                                                or eliminate) else None,
+                coarse=(lambda: p1_coarse(fm, model.V)) if scene.degree == 2 else None,
                 eliminate_faces=eliminate,
                 inexact=not model.linear,
                 # 3D: face-mean formulations cycle between active sets without it; in 2D it
@@ -220,8 +235,13 @@ class MechanicsPhysics:
                f"auto: {self.fm.msh.topology.dim}D, {self.model.dof_count()} unknowns")
         k = self.solver.linear.near_nullspace_size
         modes = f", near-nullspace of {k} rigid-body modes" if k else ""
+        pc = ksp.getPC().getType()
+        multigrid = getattr(self.solver.linear, "multigrid", None)
+        if multigrid is not None:
+            pc = (f"p-multigrid: {multigrid.smoother} on P2, GAMG on the P1 Galerkin operator "
+                  f"of {multigrid.coarse_size} unknowns")
         log.info("mechanics linear solver: %s (%s + %s%s; %s)", self.linear_solver,
-                 ksp.getType(), ksp.getPC().getType(), modes, why)
+                 ksp.getType(), pc, modes, why)
 
     def _condensed(self):
         """A :class:`~poromech.mechanics.condensed.CondensedContact` where it applies, else None."""
@@ -495,6 +515,10 @@ class MechanicsPhysics:
         smoother = getattr(self.solver.linear, "smoother", None)
         if smoother is not None:  # chosen by the solver (IterativeSolver)
             totals["level_smoother"] = smoother
+        multigrid = getattr(self.solver.linear, "multigrid", None)
+        if multigrid is not None:
+            totals["p_multigrid"] = {"fine_smoother": multigrid.smoother,
+                                     "coarse_unknowns": multigrid.coarse_size}
         summary.setdefault("linear_solver", {}).update(totals)
         if self.solver.condensed is not None:
             summary["condensed"] = self.solver.condensed.describe()
