@@ -256,6 +256,17 @@ def test_iterative_refused_for_multiplier_formulations():
     assert scene_from_dict(raw).solver.linear_solver == "iterative"
 
 
+def test_p_multigrid_refused_without_p2():
+    """``pc_type mg`` is the p-multigrid (P1 as the coarse level of P2): with P1 displacements
+    it is refused before meshing, naming the key, the value and what to use."""
+    raw = mechanics_scene(degree=1, solver={"linear_solver": "iterative",
+                                            "petsc": {"pc_type": "mg"}})
+    with pytest.raises(ConfigError, match=r"solver\.petsc\.pc_type.*'mg'.*degree 2, not 1"):
+        scene_from_dict(raw)
+    raw["degree"] = 2
+    assert scene_from_dict(raw).solver.petsc["pc_type"] == "mg"
+
+
 def test_krylov_failure_fails_the_run_with_its_reason(tmp_path):
     """Two CG iterations cannot reach the tolerance: status 3, the KSP reason and count said."""
     out = tmp_path / "fail"

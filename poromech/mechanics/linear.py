@@ -260,7 +260,7 @@ def forcing_term(fnorm: float, previous: float | None, target: float, floor: flo
 #: The coarse (P1) solve of the p-multigrid (:mod:`poromech.mechanics.multigrid`), options
 #: under ``mg_coarse_``: one V-cycle of GAMG as in :data:`ITERATIVE_OPTIONS`, SOR on its levels
 #: (Jacobi there took 942 GMRES iterations and 123 s against 529 and 86 s on the 257k-unknown
-#: network, the first two load steps).
+#: network, the first two load steps, both with point Jacobi on P2).
 P_MULTIGRID_OPTIONS: dict[str, object] = {
     "pc_type": "mg",
     "mg_coarse_ksp_type": "preonly",
@@ -581,7 +581,7 @@ class IterativeSolver:
         multigrid: The p-multigrid configured on the KSP
             (:class:`~poromech.mechanics.multigrid.PMultigrid`): its coarse operator is formed
             at each set-up, and a changed Jacobian always gets a new set-up (never
-            :attr:`lagged`: a set-up costs about two GMRES iterations).
+            :attr:`lagged`: a set-up costs three or four GMRES iterations).
     """
 
     def __init__(self, ksp: PETSc.KSP, A: PETSc.Mat,

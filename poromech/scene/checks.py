@@ -101,6 +101,10 @@ def _check_mechanics(scene: Scene, geo: PlaneGeometry) -> None:
             f"contact.formulation {scene.contact.formulation} (its multiplier block is singular "
             f"on faces in contact, a saddle-point system for a direct solve): use direct or "
             f"auto, or formulation {', '.join(ITERATIVE_FORMULATIONS[1:])}")
+    if str(scene.solver.petsc.get("pc_type")) == "mg" and scene.degree != 2:
+        raise ConfigError(
+            f"scene key 'solver.petsc.pc_type' = 'mg' (the p-multigrid, P1 as the coarse level "
+            f"of P2) needs degree 2, not {scene.degree}: use gamg, or degree 2")
 
 
 def _check_mechanics_data(scene: Scene, geo: PlaneGeometry, times) -> None:
