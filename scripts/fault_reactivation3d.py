@@ -381,7 +381,7 @@ def report(rows: list[dict], reference: str, scene) -> None:
              "injection point. Peak GB: resident size of the largest rank. Krylov: the "
              "mechanics' iterations (0 with a factorization); smoother: GAMG's level smoother "
              "chosen by the run (blank: rows run before the choice, with SOR where GAMG ran; -: a "
-             "factorization or CG). The cost ratio is total time / "
+             "factorization, CG, or the p-multigrid of P2 contact). The cost ratio is total time / "
              "(steps × (one elastic solve + one Darcy solve)), where the elastic and Darcy "
              "solves are the scene's mechanics (fractures open) and flow alone, one step each, "
              "from the command line (columns elastic s and Darcy s); the ratio per iteration "

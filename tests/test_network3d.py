@@ -276,6 +276,26 @@ def test_network_p2_p_multigrid_matches_the_direct_solve(formulation, tmp_path):
             np.testing.assert_allclose(cols[k], direct[t][k], rtol=0, atol=1e-6 * scale)
 
 
+def test_network_p_multigrid_falls_back_to_sor(tmp_path, monkeypatch):
+    """A p-multigrid solve that does not converge within ``FALLBACK_IT`` GMRES iterations with
+    point-block Jacobi on P2 is repeated with SOR, kept for the rest of the run (point-block
+    Jacobi stalled on the 3D fault scene's coarse P2 mesh). Forced here with a limit of 1: the
+    run converges, ends with SOR, and its states are those of the direct solve."""
+    import poromech.mechanics.linear as linear
+
+    monkeypatch.setattr(linear, "FALLBACK_IT", 1)
+    p2 = [c for c in COARSE if not c.startswith("degree")] + ["degree=2", "time.final=1",
+                                                               "time.steps=1"]
+    states = {}
+    for name, extra in (("direct", []), ("pmg", ["solver.linear_solver=iterative"])):
+        run_scene(load_scene(NETWORK, p2 + extra), tmp_path / name)
+        summary = json.loads((tmp_path / name / "summary.json").read_text())
+        assert summary["status"] == "converged"
+        states[name] = [r["state"] for r in read_table(tmp_path / name / "fractures.csv")]
+    assert summary["linear_solver"]["p_multigrid"]["fine_smoother"] == "sor"
+    assert states["pmg"] == states["direct"]
+
+
 def test_network_mixed_p2_full_steps_on_a_smooth_piece(monkeypatch):
     """``mixed`` P2 at mesh scale 2 (15k unknowns), the compression step. Two faces next to the
     kink slip at a vanishing rate (4e-9 m) while their tractions must still turn by about 8°:

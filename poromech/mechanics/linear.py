@@ -211,6 +211,14 @@ SWITCH_GAIN = 1.6
 TRIAL_BACKOFF = 4
 #: The level smoothers chosen between, the first one first.
 SMOOTHERS = ("sor", "jacobi")
+#: A p-multigrid solve (:mod:`poromech.mechanics.multigrid`) that has not converged in
+#: ``FALLBACK_IT`` GMRES iterations with point-block Jacobi on P2 is repeated with
+#: ``FALLBACK_SMOOTHER``, kept for the rest of the run. Point-block Jacobi took 10-60 iterations
+#: per solve wherever it converged, and stalled on the 3D fault scene's coarse uniform P2 mesh
+#: (1,000 iterations from 9e7 to 4e6 at its first step, exact coarse solve or not), where SOR
+#: and point Jacobi converge.
+FALLBACK_IT = 200
+FALLBACK_SMOOTHER = "sor"
 
 
 def _other_smoother(smoother: str) -> str:
@@ -678,10 +686,13 @@ class IterativeSolver:
             self._set_up(record)
         else:
             pc.setReusePreconditioner(True)
-        ksp.solve(F, Y)
-        its = ksp.getIterationNumber()
-        record.linear_iterations += its
-        converged = ksp.getConvergedReason() > 0
+        if self._fallback_open():
+            its, converged = self._solve_or_fall_back(F, Y, record)
+        else:
+            ksp.solve(F, Y)
+            its = ksp.getIterationNumber()
+            record.linear_iterations += its
+            converged = ksp.getConvergedReason() > 0
         if changed and self.smoother is not None:  # chosen at set-ups (SWITCH_GAIN)
             if converged and self._untried > 0:
                 self._untried -= 1
@@ -695,6 +706,47 @@ class IterativeSolver:
             return True
         record.linear_failure = failure_message(ksp, F)
         return False
+
+    def _fallback_open(self) -> bool:
+        """Whether a failed solve would still switch the p-multigrid's P2 smoother to SOR."""
+        return self.multigrid is not None and self.multigrid.smoother != FALLBACK_SMOOTHER
+
+    def _solve_or_fall_back(self, F: PETSc.Vec, Y: PETSc.Vec, record) -> tuple[int, bool]:
+        """A p-multigrid solve within :data:`FALLBACK_IT` iterations, repeated with SOR if not.
+
+        If the solve does not converge there (or breaks down), the P2 smoother becomes
+        :data:`FALLBACK_SMOOTHER` for the rest of the run and the solve is repeated with the
+        options' iteration limit (collective).
+
+        Returns:
+            The iterations of the last solve, and whether it converged.
+        """
+        ksp = self.ksp
+        max_it = ksp.getTolerances()[3]
+        _set_tolerances(ksp, max_it=min(FALLBACK_IT, max_it))
+        ksp.solve(F, Y)
+        _set_tolerances(ksp, max_it=max_it)
+        its = ksp.getIterationNumber()
+        record.linear_iterations += its
+        if ksp.getConvergedReason() > 0:
+            return its, True
+        failed = self.multigrid.smoother
+        if self.comm.rank == 0:
+            log.info("p-multigrid P2 smoother: %s (%s did not converge in %d GMRES "
+                     "iterations: %s)", FALLBACK_SMOOTHER, failed, its,
+                     ksp_reason_name(ksp.getConvergedReason()))
+        self.multigrid.set_smoother(FALLBACK_SMOOTHER)
+        t0 = time.perf_counter()
+        ksp.setOperators(self.A, self.A)
+        self.A.stateIncrease()  # the same matrix, another smoother: set the levels up again
+        ksp.getPC().setReusePreconditioner(False)
+        ksp.setUp()
+        record.time_preconditioner += time.perf_counter() - t0
+        record.factorizations += 1
+        ksp.solve(F, Y)
+        its = ksp.getIterationNumber()
+        record.linear_iterations += its
+        return its, ksp.getConvergedReason() > 0
 
     def _set_up(self, record, rebuild: bool = False) -> None:
         """Set the preconditioner up for the current matrix, with :attr:`smoother`.

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import dolfinx_solver  # noqa: F401
 
+import numpy as np
 import numpy.typing as npt
 from dolfinx import fem
 from dolfinx.fem.petsc import interpolation_matrix
@@ -40,15 +41,27 @@ __all__ = ["FINE_SMOOTHER", "PMultigrid", "p1_interpolation"]
 FINE_SMOOTHER = "pbjacobi"
 
 
-def p1_interpolation(V: fem.FunctionSpace, V1: fem.FunctionSpace) -> PETSc.Mat:
+def p1_interpolation(V: fem.FunctionSpace, V1: fem.FunctionSpace,
+                     constrained: npt.NDArray | None = None) -> PETSc.Mat:
     """The interpolation of the P1 space ``V1`` into the P2 space ``V`` (collective).
 
     Rows: the owned dofs of ``V``; columns: those of ``V1``. Both spaces must be built on the
     same cracked topology (:func:`poromech.mesh.fractured.cracked_space`), so that the
     interpolation is exact and does not couple the two sides of a fracture.
+
+    Args:
+        V: The P2 space.
+        V1: The P1 space.
+        constrained: Global rows of ``V`` held by displacement conditions (owned rows), whose
+            rows of the interpolation are zeroed: a coarse correction must not move them. Their
+            rows of the Jacobian are the identity; kept in the interpolation, they made the
+            Galerkin operator a mixture of unit and stiffness scales, and GMRES stalled on the
+            3D fault scene's coarse P2 mesh (1,000 iterations from 9e7 to 4e6).
     """
     P = interpolation_matrix(V1, V)
     P.assemble()
+    if constrained is not None:
+        P.zeroRows(np.asarray(constrained, dtype=PETSc.IntType), diag=0.0)
     return P
 
 
@@ -95,6 +108,10 @@ class PMultigrid:
     def smoother(self) -> str:
         """The fine level's smoother (its PC type)."""
         return self.pc.getMGSmoother(1).getPC().getType()
+
+    def set_smoother(self, smoother: str) -> None:
+        """Make ``smoother`` (a PC type) the P2 level's; the next set-up builds it."""
+        self.pc.getMGSmoother(1).getPC().setType(smoother)
 
     def set_up(self, A: PETSc.Mat) -> None:
         """The coarse operator ``Pᵀ A P`` of the Jacobian ``A`` given to the levels (collective).
