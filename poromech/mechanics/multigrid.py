@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import dolfinx_solver  # noqa: F401
 
-import numpy as np
 import numpy.typing as npt
 from dolfinx import fem
 from dolfinx.fem.petsc import interpolation_matrix
@@ -41,27 +40,17 @@ __all__ = ["FINE_SMOOTHER", "PMultigrid", "p1_interpolation"]
 FINE_SMOOTHER = "pbjacobi"
 
 
-def p1_interpolation(V: fem.FunctionSpace, V1: fem.FunctionSpace,
-                     constrained: npt.NDArray | None = None) -> PETSc.Mat:
+def p1_interpolation(V: fem.FunctionSpace, V1: fem.FunctionSpace) -> PETSc.Mat:
     """The interpolation of the P1 space ``V1`` into the P2 space ``V`` (collective).
 
     Rows: the owned dofs of ``V``; columns: those of ``V1``. Both spaces must be built on the
     same cracked topology (:func:`poromech.mesh.fractured.cracked_space`), so that the
-    interpolation is exact and does not couple the two sides of a fracture.
-
-    Args:
-        V: The P2 space.
-        V1: The P1 space.
-        constrained: Global rows of ``V`` held by displacement conditions (owned rows), whose
-            rows of the interpolation are zeroed: a coarse correction must not move them. Their
-            rows of the Jacobian are the identity; kept in the interpolation, they made the
-            Galerkin operator a mixture of unit and stiffness scales, and GMRES stalled on the
-            3D fault scene's coarse P2 mesh (1,000 iterations from 9e7 to 4e6).
+    interpolation is exact and does not couple the two sides of a fracture. The rows of
+    displacement-condition dofs are kept: their Jacobian rows are the identity, which the
+    smoother solves exactly.
     """
     P = interpolation_matrix(V1, V)
     P.assemble()
-    if constrained is not None:
-        P.zeroRows(np.asarray(constrained, dtype=PETSc.IntType), diag=0.0)
     return P
 
 

@@ -69,23 +69,15 @@ def linear_solver_options(kind: str, formulation: str, degree: int = 1) -> dict:
     return iterative_options(symmetric=formulation == "none", p_multigrid=degree == 2)
 
 
-def p1_coarse(fm: FracturedMesh, V, bcs) -> tuple[PETSc.Mat, np.ndarray]:
+def p1_coarse(fm: FracturedMesh, V) -> tuple[PETSc.Mat, np.ndarray]:
     """The p-multigrid's coarse level for the displacement space ``V`` (collective).
-
-    Args:
-        fm: The fractured mesh.
-        V: The displacement space (P2).
-        bcs: The displacement conditions on ``V``: the interpolation does not reach their dofs.
 
     Returns:
         The interpolation from the P1 space of the same cracked mesh into ``V``, and the P1
         rigid-body modes.
     """
     V1 = cracked_space(fm, 1)
-    rows = [bc.dof_indices()[0][: bc.dof_indices()[1]] for bc in bcs]
-    owned = np.unique(np.concatenate(rows)) if rows else np.empty(0, dtype=np.int32)
-    start = V.dofmap.index_map.local_range[0] * V.dofmap.index_map_bs
-    return p1_interpolation(V, V1, owned + start), rigid_body_modes(V1)
+    return p1_interpolation(V, V1), rigid_body_modes(V1)
 
 
 def floating_pieces(scene: Scene, fm: FracturedMesh) -> list[str]:
@@ -205,8 +197,7 @@ class MechanicsPhysics:
                 constant_bulk=model.J_split if constant else None,
                 modes=(lambda: rigid_body_modes(model.V)) if (len(model.unknowns) == 1
                                                                or eliminate) else None,
-                coarse=(lambda: p1_coarse(fm, model.V, model.bcs)) if scene.degree == 2
-                else None,
+                coarse=(lambda: p1_coarse(fm, model.V)) if scene.degree == 2 else None,
                 eliminate_faces=eliminate,
                 inexact=not model.linear,
                 # 3D: face-mean formulations cycle between active sets without it; in 2D it
