@@ -343,8 +343,8 @@ def test_a_floating_piece_is_refused():
 def test_iterative_on_a_piece_held_only_by_contact(formulation):
     """The top piece of the cut box is pushed down onto the bottom one and sheared below the
     friction bound: only contact holds it (its rigid motions are penalized by β/h alone).
-    GMRES + GAMG converges (face unknowns eliminated for the facewise formulations), to the
-    direct solution and states; every point in contact, sticking."""
+    GMRES with the p-multigrid of P2 converges (face unknowns eliminated for the facewise
+    formulations), to the direct solution and states; every point in contact, sticking."""
     u, its, codes = {}, {}, {}
     for kind in ("direct", "iterative"):
         raw = copy.deepcopy(CUT)
