@@ -36,7 +36,8 @@ __all__ = ["FINE_SMOOTHER", "PMultigrid", "p1_interpolation"]
 #: (the first two load steps, 1 rank): 398 GMRES iterations in 76 s, point Jacobi 529 in
 #: 86–90 s, SOR 242 in 109 s (one Chebyshev iteration instead of two: 294 in 86 s). On the coarse
 #: P2 network of tests/test_network3d.py (11k unknowns, the same two steps) point Jacobi took
-#: 1,054 GMRES iterations, point-block Jacobi 218, SOR 123.
+#: 1,054 GMRES iterations, point-block Jacobi 218, SOR 123. A solve that stalls with it is
+#: repeated with SOR, kept for the run (``FALLBACK_IT`` in :mod:`poromech.mechanics.linear`).
 FINE_SMOOTHER = "pbjacobi"
 
 
