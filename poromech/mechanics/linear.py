@@ -736,13 +736,7 @@ class IterativeSolver:
                      "iterations: %s)", FALLBACK_SMOOTHER, failed, its,
                      ksp_reason_name(ksp.getConvergedReason()))
         self.multigrid.set_smoother(FALLBACK_SMOOTHER)
-        t0 = time.perf_counter()
-        ksp.setOperators(self.A, self.A)
-        self.A.stateIncrease()  # the same matrix, another smoother: set the levels up again
-        ksp.getPC().setReusePreconditioner(False)
-        ksp.setUp()
-        record.time_preconditioner += time.perf_counter() - t0
-        record.factorizations += 1
+        self._set_up(record, rebuild=True)
         ksp.solve(F, Y)
         its = ksp.getIterationNumber()
         record.linear_iterations += its
@@ -753,7 +747,8 @@ class IterativeSolver:
 
         Args:
             record: The Newton's record (set-up count and time).
-            rebuild: Build the preconditioner anew (a new level smoother for the same matrix).
+            rebuild: Build the preconditioner anew (a new level smoother for the same matrix:
+                GAMG's choice, or the p-multigrid's fallback).
         """
         ksp, pc = self.ksp, self.ksp.getPC()
         t0 = time.perf_counter()
@@ -762,6 +757,8 @@ class IterativeSolver:
         with PrefixedOptions(ksp.getOptionsPrefix() or "", {"mg_levels_pc_type": self.smoother}):
             if self.multigrid is not None:
                 self.multigrid.set_up(self.A)
+                if rebuild:  # the same matrix, another smoother: PETSc keeps the levels' set-up
+                    self.A.stateIncrease()  # of an unchanged matrix otherwise
             elif rebuild:  # GAMG keeps its smoothers and their eigenvalue estimates otherwise
                 pc.setType(PETSc.PC.Type.NONE)
                 pc.setType(PETSc.PC.Type.GAMG)
