@@ -1049,7 +1049,8 @@ def linear_strategy(ksp: PETSc.KSP, A: PETSc.Mat, prefix: str, *, reuse: bool, s
     multigrid = None
     if ksp.getPC().getType() == PETSc.PC.Type.MG:
         if coarse is None:
-            raise ValueError(f"{prefix}pc_type mg: the p-multigrid needs P2 displacements")
+            raise ValueError(f"{prefix}pc_type mg (the p-multigrid) needs degree 2 displacements: "
+                             "use gamg, or degree 2")
         multigrid = PMultigrid(ksp, *coarse(), near_nullspace)
     if blocks is not None:
         return FaceElimination(ksp, A, blocks[0], blocks[1], modes(), reuse=reuse,
