@@ -150,6 +150,38 @@ def test_p_multigrid_coarse_level_is_the_p1_space_of_the_cracked_mesh():
     assert G.norm(PETSc.NormType.FROBENIUS) < 1e-10 * A1.norm(PETSc.NormType.FROBENIUS)
 
 
+def test_p_multigrid_fine_operator_is_a_block_copy_of_the_jacobian():
+    """The Krylov method and the P2 smoother use a copy of the Jacobian stored in 3 × 3 blocks
+    (BAIJ, a faster product); the copy applies the same operator (to round-off) and is
+    refreshed at each set-up, and the coarse operator is still ``Pᵀ A P`` of the AIJ
+    Jacobian."""
+    from poromech.mechanics.linear import near_nullspace
+    from poromech.mechanics.multigrid import PMultigrid, p1_interpolation
+
+    comm = MPI.COMM_WORLD
+    fm = build_mesh(load_scene(PENNY, COARSE), comm)
+    V2, V1 = cracked_space(fm, 2), cracked_space(fm, 1)
+    A = _elastic_operator(V2)
+    near_nullspace(A, rigid_body_modes(V2))
+    ksp = PETSc.KSP().create(comm)
+    mg = PMultigrid(ksp, p1_interpolation(V2, V1), rigid_body_modes(V1), near_nullspace)
+    z, y, w = A.createVecRight(), A.createVecLeft(), A.createVecLeft()
+    z.setRandom()
+    for scale in (1.0, 2.0):  # the second set-up refreshes the copy
+        A.scale(scale)
+        fine = mg.set_up(A)
+        assert fine.getType().endswith("baij") and fine.getBlockSize() == 3
+        A.mult(z, y)
+        fine.mult(z, w)
+        w.axpy(-1.0, y)
+        assert w.norm() < 1e-13 * y.norm()
+        G = A.ptap(mg.P)
+        G.axpy(-1.0, mg.A_coarse)
+        assert G.norm(PETSc.NormType.FROBENIUS) == 0.0
+    mg.destroy()
+    ksp.destroy()
+
+
 SERIAL_VS_PARALLEL = """
 import sys, json
 sys.path.insert(0, "tests")

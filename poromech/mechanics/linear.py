@@ -755,15 +755,16 @@ class IterativeSolver:
         # the levels read their smoother at every set-up; when it is chosen here, no option
         # names it (linear_strategy), so it is pushed for the set-up and removed after
         with PrefixedOptions(ksp.getOptionsPrefix() or "", {"mg_levels_pc_type": self.smoother}):
+            operator = self.A
             if self.multigrid is not None:
-                self.multigrid.set_up(self.A)
+                operator = self.multigrid.set_up(self.A)
                 if rebuild:  # the same matrix, another smoother: PETSc keeps the levels' set-up
-                    self.A.stateIncrease()  # of an unchanged matrix otherwise
+                    operator.stateIncrease()  # of an unchanged matrix otherwise
             elif rebuild:  # GAMG keeps its smoothers and their eigenvalue estimates otherwise
                 pc.setType(PETSc.PC.Type.NONE)
                 pc.setType(PETSc.PC.Type.GAMG)
                 pc.setFromOptions()
-            ksp.setOperators(self.A, self.A)
+            ksp.setOperators(operator, operator)
             pc.setReusePreconditioner(False)
             ksp.setUp()
         record.time_preconditioner += time.perf_counter() - t0

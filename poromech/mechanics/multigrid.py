@@ -8,7 +8,8 @@ fracture either). :class:`PMultigrid` makes the preconditioner of the Newton's K
 two-level PCMG:
 
 * fine level, the P2 Jacobian: Chebyshev (degree 2) with point-block Jacobi (:data:`FINE_SMOOTHER`),
-  pre- and post-smoothing;
+  pre- and post-smoothing, on a copy of the Jacobian in d × d blocks (:data:`FINE_FORMAT`),
+  which the Krylov method multiplies by too;
 * coarse level, the Galerkin operator ``Pᵀ J P`` of the P1 space (about 1/8 of the unknowns and
   a third of the nonzeros per row), solved by one GAMG V-cycle with the rigid-body modes of P1.
 
@@ -28,7 +29,15 @@ from dolfinx import fem
 from dolfinx.fem.petsc import interpolation_matrix
 from petsc4py import PETSc
 
-__all__ = ["FINE_SMOOTHER", "PMultigrid", "p1_interpolation"]
+__all__ = ["FINE_FORMAT", "FINE_SMOOTHER", "PMultigrid", "p1_interpolation"]
+
+#: Storage of the P2 operator of the Krylov method and the fine smoother: a copy of the
+#: Jacobian in blocks of d × d (PETSc's BAIJ), whose product is faster than the AIJ Jacobian's
+#: (one column index per block): 30–33 ms against 35–43 ms for the 257k-unknown network's
+#: Jacobian (21M nonzeros), refreshed at each set-up in 0.15 s. The Galerkin product
+#: ``Pᵀ J P`` is formed from the AIJ Jacobian (PETSc has no BAIJ × AIJ product). None: the
+#: Jacobian itself.
+FINE_FORMAT: str | None = "baij"
 
 #: The fine level's smoother (``<prefix>mg_levels_pc_type`` overrides it): point-block Jacobi,
 #: the inverse of each node's 3 × 3 block (d × d), which holds the contact terms' coupling of
@@ -70,6 +79,9 @@ class PMultigrid:
             near-nullspace.
         near_nullspace: Builds the near-nullspace of a matrix from modes
             (:func:`~poromech.mechanics.linear.near_nullspace`).
+
+    Attributes:
+        fine_format: PETSc storage of the P2 operator's copy (:data:`FINE_FORMAT`), or None.
     """
 
     def __init__(self, ksp: PETSc.KSP, P: PETSc.Mat, coarse_modes: npt.NDArray,
@@ -92,6 +104,8 @@ class PMultigrid:
         coarse.setFromOptions()
         self.pc = pc
         self.A_coarse: PETSc.Mat | None = None
+        self.fine_format = FINE_FORMAT
+        self.A_fine: PETSc.Mat | None = None  # the fine_format copy of the Jacobian
         self._nullspace = None
 
     @property
@@ -103,10 +117,12 @@ class PMultigrid:
         """Make ``smoother`` (a PC type) the P2 level's; the next set-up builds it."""
         self.pc.getMGSmoother(1).getPC().setType(smoother)
 
-    def set_up(self, A: PETSc.Mat) -> None:
-        """The coarse operator ``Pᵀ A P`` of the Jacobian ``A`` given to the levels (collective).
+    def set_up(self, A: PETSc.Mat) -> PETSc.Mat:
+        """The levels' operators of the Jacobian ``A`` (collective); the KSP's operator.
 
-        The KSP's own ``setUp`` then sets the smoother and the coarse GAMG up.
+        The coarse operator is ``Pᵀ A P``; the fine one, and the returned operator of the
+        Krylov method, ``A`` stored as :attr:`fine_format` (:data:`FINE_FORMAT`). The KSP's
+        own ``setUp`` then sets the smoother and the coarse GAMG up.
         """
         if self.A_coarse is None:
             self.A_coarse = A.ptap(self.P)
@@ -116,10 +132,18 @@ class PMultigrid:
         coarse = self.pc.getMGCoarseSolve()
         coarse.setOperators(self.A_coarse, self.A_coarse)
         coarse.getPC().setReusePreconditioner(False)
-        self.pc.getMGSmoother(1).setOperators(A, A)
+        fine = A
+        if self.fine_format is not None:
+            if self.A_fine is None:
+                self.A_fine = A.convert(self.fine_format, PETSc.Mat())
+            else:
+                A.convert(self.fine_format, self.A_fine)
+            fine = self.A_fine
+        self.pc.getMGSmoother(1).setOperators(fine, fine)
+        return fine
 
     def destroy(self) -> None:
-        """Free the interpolation, the coarse operator and its near-nullspace."""
-        for obj in (self.P, self.A_coarse, self._nullspace):
+        """Free the interpolation, the coarse operator, its near-nullspace and the fine copy."""
+        for obj in (self.P, self.A_coarse, self.A_fine, self._nullspace):
             if obj is not None:
                 obj.destroy()

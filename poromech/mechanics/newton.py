@@ -62,7 +62,9 @@ for one. When the contact law says that its Jacobian is a function of the contac
 (2D friction: piecewise affine), an unchanged active set skips the assembly of the Jacobian
 altogether (``states_determine_jacobian``), and a problem without contact terms whose
 coefficients are constant in time assembles its Jacobian once (``constant_jacobian``). A
-residual evaluated during the line search is not assembled again for the accepted iterate.
+residual evaluated during the line search is not assembled again for the accepted iterate, and
+a residual at an iterate that holds the Dirichlet values exactly skips the lifting, which would
+add zeros (on the Krylov path the directions keep them: ``exact_dirichlet``).
 """
 
 from __future__ import annotations
@@ -78,8 +80,15 @@ import dolfinx
 import numpy as np
 from dolfinx import cpp as _cpp
 from dolfinx import fem
-from dolfinx.fem import pack_coefficients, pack_constants
-from dolfinx.fem.petsc import assemble_residual, assign, create_matrix, create_vector
+from dolfinx.fem import bcs_by_block, extract_function_spaces, pack_coefficients, pack_constants
+from dolfinx.fem.petsc import (
+    apply_lifting,
+    assemble_vector,
+    assign,
+    create_matrix,
+    create_vector,
+    set_bc,
+)
 from mpi4py import MPI
 from petsc4py import PETSc
 
@@ -230,6 +239,8 @@ class SemiSmoothNewton:
         curved: The contact law is not piecewise affine (friction in 3D): a full step that
             switches no contact point may still increase the merit, and is taken within
             :data:`NONMONOTONE_STEPS` iterations (:class:`LineSearchParameters`).
+        exact_dirichlet: Set each direction to its exact value on the Dirichlet dofs
+            (:meth:`exact_on_dirichlet`; for Krylov solves).
 
     Attributes:
         A: The Jacobian matrix.
@@ -262,6 +273,7 @@ class SemiSmoothNewton:
         inexact: bool = False,
         one_sided: bool = False,
         curved: bool = False,
+        exact_dirichlet: bool = False,
     ):
         self.F, self.J, self.u, self.bcs = list(F), [list(r) for r in J], list(unknowns), list(bcs)
         self.comm = self.u[0].function_space.mesh.comm
@@ -272,6 +284,11 @@ class SemiSmoothNewton:
         self._cache_x = self.x.duplicate()
         self._cache_f = self.b.duplicate()
         self._cache_valid = False
+        # the Dirichlet conditions by block, as DOLFINx's assemble_residual arranges them
+        self._bcs_rows = bcs_by_block(extract_function_spaces(self.F), self.bcs)
+        self._bcs_cols = bcs_by_block(extract_function_spaces(self.J, 1), self.bcs)
+        self._bc_gap = self.b.duplicate()  # x - g on the Dirichlet dofs (_dirichlet_exact)
+        self._bc_gap.setAttr("_blocks", self._blocks)
         self.line_search = line_search
         self.ls = LineSearchParameters(one_sided=one_sided,
                                        nonmonotone=NONMONOTONE_STEPS if curved else 0)
@@ -292,6 +309,7 @@ class SemiSmoothNewton:
         self.prefix = prefix
         self._eliminate_faces = eliminate_faces
         self.inexact = inexact
+        self.exact_dirichlet = exact_dirichlet
         self.snes, self.linear = self._create_snes(prefix, options or {}, stale_factorization,
                                                    modes, coarse)
         if inexact and reuse_jacobian and hasattr(self.linear, "lagged"):
@@ -366,12 +384,52 @@ class SemiSmoothNewton:
                 self._cache_f.copy(b)
                 self.record.time_assembly += time.perf_counter() - t0
                 return
-        assemble_residual(snes, x, b, self.u, self.F, self.J, self.bcs, _blocks=self._blocks)
+        self._assemble_residual(x, b)
         x.copy(self._cache_x)
         b.copy(self._cache_f)
         self._cache_valid = True
         self.record.residual_evaluations += 1
         self.record.time_assembly += time.perf_counter() - t0
+
+    def _assemble_residual(self, x: PETSc.Vec, b: PETSc.Vec) -> None:
+        """The residual at ``x`` into ``b``: DOLFINx's ``assemble_residual``, no no-op lifting.
+
+        The lifting adds ``J (g - x)`` over the Dirichlet dofs, an assembly of the Jacobian's
+        forms over the cells holding them (as long as the residual's own assembly on the
+        eleven-fracture network). Where ``x`` equals ``g`` exactly on every Dirichlet dof it adds
+        zeros and is skipped: the residual is the same to the last bit.
+        """
+        dolfinx.la.petsc._ghost_update(x, PETSc.InsertMode.INSERT, PETSc.ScatterMode.FORWARD)
+        assign(x, self.u)
+        b.setAttr("_blocks", self._blocks)
+        x.setAttr("_blocks", self._blocks)
+        dolfinx.la.petsc._zero_vector(b)
+        assemble_vector(b, self.F)
+        if not self._dirichlet_exact(x):
+            apply_lifting(b, self.J, bcs=self._bcs_cols, x0=x, alpha=-1.0)
+        dolfinx.la.petsc._ghost_update(b, PETSc.InsertMode.ADD, PETSc.ScatterMode.REVERSE)
+        set_bc(b, self._bcs_rows, x0=x, alpha=-1.0)
+        dolfinx.la.petsc._ghost_update(b, PETSc.InsertMode.INSERT, PETSc.ScatterMode.FORWARD)
+
+    def _dirichlet_exact(self, x: PETSc.Vec) -> bool:
+        """Whether ``x`` equals the Dirichlet values exactly on every rank (collective)."""
+        gap = self._bc_gap
+        gap.zeroEntries()
+        set_bc(gap, self._bcs_rows, x0=x, alpha=-1.0)
+        return gap.norm(PETSc.NormType.NORM_INFINITY) == 0.0
+
+    def exact_on_dirichlet(self, x: PETSc.Vec, y: PETSc.Vec) -> None:
+        """Set the direction ``y`` at ``x`` to ``x - g`` on the Dirichlet dofs (if exact_dirichlet).
+
+        That is the exact solution of the Jacobian's identity rows, which a Krylov solve only
+        approximates; the other components do not depend on it (the Dirichlet columns are
+        zero). A step then keeps ``x = g`` to the bit, and the residual skips its lifting.
+        """
+        if not self.exact_dirichlet:
+            return
+        for v in (x, y):
+            v.setAttr("_blocks", self._blocks)
+        set_bc(y, self._bcs_rows, x0=x, alpha=-1.0)
 
     def _jacobian(self, snes, x, A, P) -> None:
         """Assemble the Jacobian, unless the active set is that of the assembled one.
@@ -654,6 +712,7 @@ class _NewtonStep:
             s.linear.forget()
             Y.set(0.0)
             return
+        s.exact_on_dirichlet(X, Y)
         alpha = self._line_search(snes, X, F, Y)
         s.record.steps.append(alpha)
         if alpha != 1.0:
@@ -759,6 +818,7 @@ class _NewtonStep:
         if not solved:
             s.linear.forget()
             return None
+        s.exact_on_dirichlet(X, self._direction)
         return self._direction
 
     def _choose_step(self, snes, X, Y, f0: float, nonmonotone: bool = False

@@ -204,6 +204,7 @@ class MechanicsPhysics:
                 # costs Newton iterations on the coupled six-fracture scene (docs/mechanics3d.md)
                 one_sided=fm.msh.topology.dim == 3,
                 curved=not model.params.piecewise_affine,
+                exact_dirichlet=self.linear_solver == "iterative",
             )
         self._log_linear_solver()
         self.linear_totals = {"krylov_iterations": 0, "preconditioner_setups": 0,
@@ -238,8 +239,9 @@ class MechanicsPhysics:
         pc = ksp.getPC().getType()
         multigrid = getattr(self.solver.linear, "multigrid", None)
         if multigrid is not None:
-            pc = (f"p-multigrid: {multigrid.smoother} on P2, GAMG on the P1 Galerkin operator "
-                  f"of {multigrid.coarse_size} unknowns")
+            stored = f" ({multigrid.fine_format} copy)" if multigrid.fine_format else ""
+            pc = (f"p-multigrid: {multigrid.smoother} on P2{stored}, GAMG on the P1 Galerkin "
+                  f"operator of {multigrid.coarse_size} unknowns")
         log.info("mechanics linear solver: %s (%s + %s%s; %s)", self.linear_solver,
                  ksp.getType(), pc, modes, why)
 
@@ -518,6 +520,7 @@ class MechanicsPhysics:
         multigrid = getattr(self.solver.linear, "multigrid", None)
         if multigrid is not None:
             totals["p_multigrid"] = {"fine_smoother": multigrid.smoother,
+                                     "fine_format": multigrid.fine_format or "aij",
                                      "coarse_unknowns": multigrid.coarse_size}
         summary.setdefault("linear_solver", {}).update(totals)
         if self.solver.condensed is not None:
