@@ -369,7 +369,8 @@ class SemiSmoothNewton:
         if self._step is not None:
             self._step.free()
         self.linear.destroy()
-        for obj in (self.snes, self.A, self.b, self.x, self._cache_x, self._cache_f, self._K):
+        for obj in (self.snes, self.A, self.b, self.x, self._cache_x, self._cache_f, self._K,
+                    self._bc_gap):
             if obj is not None:
                 obj.destroy()
 
