@@ -673,13 +673,8 @@ class IterativeSolver:
         if changed and self.lagged and self._rate is not None:
             ksp.setOperators(self.A, self.A)
             pc.setReusePreconditioner(True)
-            rtol, _, _, max_it = ksp.getTolerances()
-            cap = int(np.ceil(LAG_FACTOR * self._rate * _decades(rtol))) + LAG_EXTRA
-            _set_tolerances(ksp, max_it=min(cap, max_it))
-            ksp.solve(F, Y)
-            _set_tolerances(ksp, max_it=max_it)
-            record.linear_iterations += ksp.getIterationNumber()
-            if ksp.getConvergedReason() > 0:
+            cap = int(np.ceil(LAG_FACTOR * self._rate * _decades(ksp.getTolerances()[0])))
+            if self._counted_solve(F, Y, record, cap + LAG_EXTRA)[1]:
                 record.stale_solves += 1
                 return True
         if changed:
@@ -689,10 +684,7 @@ class IterativeSolver:
         if self._fallback_open():
             its, converged = self._solve_or_fall_back(F, Y, record)
         else:
-            ksp.solve(F, Y)
-            its = ksp.getIterationNumber()
-            record.linear_iterations += its
-            converged = ksp.getConvergedReason() > 0
+            its, converged = self._counted_solve(F, Y, record)
         if changed and self.smoother is not None:  # chosen at set-ups (SWITCH_GAIN)
             if converged and self._untried > 0:
                 self._untried -= 1
@@ -706,6 +698,24 @@ class IterativeSolver:
             return True
         record.linear_failure = failure_message(ksp, F)
         return False
+
+    def _counted_solve(self, F: PETSc.Vec, Y: PETSc.Vec, record,
+                       max_it: int | None = None) -> tuple[int, bool]:
+        """One Krylov solve, within ``max_it`` iterations if given (at most the options').
+
+        Returns:
+            Its iterations (added to the record's), and whether it converged.
+        """
+        ksp = self.ksp
+        limit = ksp.getTolerances()[3]
+        if max_it is not None:
+            _set_tolerances(ksp, max_it=min(max_it, limit))
+        ksp.solve(F, Y)
+        if max_it is not None:
+            _set_tolerances(ksp, max_it=limit)
+        its = ksp.getIterationNumber()
+        record.linear_iterations += its
+        return its, ksp.getConvergedReason() > 0
 
     def _fallback_open(self) -> bool:
         """Whether a failed solve would still switch the p-multigrid's P2 smoother to SOR."""
@@ -721,26 +731,16 @@ class IterativeSolver:
         Returns:
             The iterations of the last solve, and whether it converged.
         """
-        ksp = self.ksp
-        max_it = ksp.getTolerances()[3]
-        _set_tolerances(ksp, max_it=min(FALLBACK_IT, max_it))
-        ksp.solve(F, Y)
-        _set_tolerances(ksp, max_it=max_it)
-        its = ksp.getIterationNumber()
-        record.linear_iterations += its
-        if ksp.getConvergedReason() > 0:
+        its, converged = self._counted_solve(F, Y, record, FALLBACK_IT)
+        if converged:
             return its, True
-        failed = self.multigrid.smoother
         if self.comm.rank == 0:
             log.info("p-multigrid P2 smoother: %s (%s did not converge in %d GMRES "
-                     "iterations: %s)", FALLBACK_SMOOTHER, failed, its,
-                     ksp_reason_name(ksp.getConvergedReason()))
+                     "iterations: %s)", FALLBACK_SMOOTHER, self.multigrid.smoother, its,
+                     ksp_reason_name(self.ksp.getConvergedReason()))
         self.multigrid.set_smoother(FALLBACK_SMOOTHER)
         self._set_up(record, rebuild=True)
-        ksp.solve(F, Y)
-        its = ksp.getIterationNumber()
-        record.linear_iterations += its
-        return its, ksp.getConvergedReason() > 0
+        return self._counted_solve(F, Y, record)
 
     def _set_up(self, record, rebuild: bool = False) -> None:
         """Set the preconditioner up for the current matrix, with :attr:`smoother`.
@@ -793,14 +793,7 @@ class IterativeSolver:
         kept = Y.copy()
         self.smoother = other
         self._set_up(record, rebuild=True)
-        ksp = self.ksp
-        max_it = ksp.getTolerances()[3]
-        _set_tolerances(ksp, max_it=cap)
-        ksp.solve(F, Y)
-        _set_tolerances(ksp, max_it=max_it)
-        trial = ksp.getIterationNumber()
-        record.linear_iterations += trial
-        won = ksp.getConvergedReason() > 0
+        trial, won = self._counted_solve(F, Y, record, cap)
         self._chosen += 1
         if self.comm.rank == 0:
             (log.info if self._chosen == 1 or won else log.debug)(
@@ -832,10 +825,7 @@ class IterativeSolver:
             log.info("GAMG level smoother: %s (the solve with %s failed: %s)",
                      self.smoother, failed, ksp_reason_name(self.ksp.getConvergedReason()))
         self._set_up(record, rebuild=True)
-        self.ksp.solve(F, Y)
-        its = self.ksp.getIterationNumber()
-        record.linear_iterations += its
-        return its, self.ksp.getConvergedReason() > 0
+        return self._counted_solve(F, Y, record)
 
     def forget(self) -> None:
         """Set the preconditioner up again at the next solve."""
