@@ -461,3 +461,42 @@ def test_iterates_keep_the_dirichlet_values_and_the_residual_its_bits(monkeypatc
             assert np.array_equal(ours.array, reference.array)
         if owned:
             assert np.abs(ours.array[dofs[:owned]]).max() > 0
+
+
+def test_a_petsc_line_search_solves_by_the_iterative_strategy(tmp_path):
+    """``solver.line_search: bt`` (PETSc's Newton) with P2 and the iterative solver: PETSc's KSP
+    is a shell of the linear strategy, so the face unknowns of ``mean_nitsche`` are eliminated
+    and the p-multigrid gets its coarse operator (PETSc's KSP on the whole system failed with
+    "You requested a vector from a KSP that cannot provide one"). The same jumps as poromech's
+    search to the Newton tolerance; a failed linear solve ends the Newton as
+    ``DIVERGED_LINEAR_SOLVE`` with the strategy's reason."""
+    from poromech.errors import SolverError
+    from poromech.run import Run
+
+    sets = [c for c in COARSE if not c.startswith("degree")] + [
+        "degree=2", "contact.formulation=mean_nitsche", "solver.linear_solver=iterative",
+        "time.final=2", "time.steps=2"]
+    jumps = {}
+    for search in ("contact", "bt"):
+        out = tmp_path / search
+        with Run(load_scene(NETWORK, [*sets, f"solver.line_search={search}"]), out) as run:
+            summary = run.execute()
+            solver = run.physics.solver
+            assert solver.ksp.getPC().getType() == "mg"
+            assert (solver.snes.getKSP().getType() == "preonly") == (search == "bt")
+            assert solver.linear.multigrid.fine_format == "baij"
+        assert summary["status"] == "converged"
+        records = summary["solves"]
+        assert all(r["factorizations"] >= r["iterations"] for r in records)  # a set-up each
+        assert all(r["iterations"] <= 15 for r in records)
+        rows = by_time(read_table(out / "fractures.csv"))[2.0]
+        jumps[search] = np.stack([rows[k] for k in ("jump_n", "jump_tx", "jump_ty", "jump_tz")])
+    scale = np.abs(jumps["contact"]).max()
+    assert np.abs(jumps["bt"] - jumps["contact"]).max() < 1e-6 * scale
+
+    failing = [*sets, "solver.line_search=bt", "solver.petsc={ksp_max_it: 2}", "time.max_cuts=0"]
+    with Run(load_scene(NETWORK, failing), tmp_path / "fails") as run, \
+            pytest.raises(SolverError) as err:
+        run.execute()
+    assert err.value.reason == "DIVERGED_LINEAR_SOLVE"
+    assert "(gmres + mg) did not converge: DIVERGED_MAX_IT after 2 iterations" in str(err.value)

@@ -310,6 +310,8 @@ class SemiSmoothNewton:
         self._eliminate_faces = eliminate_faces
         self.inexact = inexact
         self.exact_dirichlet = exact_dirichlet
+        self.ksp: PETSc.KSP | None = None  # the linear strategy's KSP (_create_snes)
+        self._shell = None  # PETSc's Newton's KSP as a shell of the strategy (_LinearShell)
         self.snes, self.linear = self._create_snes(prefix, options or {}, stale_factorization,
                                                    modes, coarse)
         if inexact and reuse_jacobian and hasattr(self.linear, "lagged"):
@@ -344,11 +346,21 @@ class SemiSmoothNewton:
             snes.setFunction(self._residual, self.b)
             snes.setJacobian(self._jacobian, self.A, self.A)
             snes.setFromOptions()
-            linear = linear_strategy(snes.getKSP(), self.A, prefix, reuse=self.reuse_jacobian,
+            python = snes.getType() == PETSc.SNES.Type.PYTHON
+            self.ksp = snes.getKSP()
+            if not python:  # the strategy gets a KSP of its own, with the same options
+                self.ksp = PETSc.KSP().create(self.comm)
+                self.ksp.setOptionsPrefix(prefix)
+                self.ksp.setOperators(self.A, self.A)
+                self.ksp.setFromOptions()
+            linear = linear_strategy(self.ksp, self.A, prefix, reuse=self.reuse_jacobian,
                                      stale=stale, modes=modes, blocks=self._face_blocks(),
                                      coarse=coarse)
-        if snes.getType() == PETSc.SNES.Type.PYTHON:
+        if python:
             snes.setPythonContext(_NewtonStep(self))
+        else:
+            self._shell = _LinearShell(self)
+            self._shell.attach(snes.getKSP())
         snes.setConvergenceTest(self._converged)
         snes.setMonitor(self._monitor)
         self.A.setOptionsPrefix(f"{prefix}A_")
@@ -369,8 +381,9 @@ class SemiSmoothNewton:
         if self._step is not None:
             self._step.free()
         self.linear.destroy()
-        for obj in (self.snes, self.A, self.b, self.x, self._cache_x, self._cache_f, self._K,
-                    self._bc_gap):
+        own_ksp = self.ksp if self._shell is not None else None  # not the SNES's
+        for obj in (self.snes, own_ksp, self.A, self.b, self.x, self._cache_x, self._cache_f,
+                    self._K, self._bc_gap):
             if obj is not None:
                 obj.destroy()
 
@@ -529,6 +542,22 @@ class SemiSmoothNewton:
         """Active-set codes of the current iterate (None without states)."""
         return self._last_states
 
+    def set_forcing_term(self) -> None:
+        """With :attr:`inexact` and a Krylov strategy, the tolerance of the next direction's solve.
+
+        As accurate as the Newton needs (:func:`~poromech.mechanics.linear.forcing_term`), from
+        the residual norms recorded so far.
+        """
+        if not (self.inexact and hasattr(self.linear, "set_tolerance")):
+            return
+        res = self.record.residuals
+        target = self.snes.getTolerances()[0] * self.reference_norm
+        changes = self.record.active_set_changes
+        switched = bool(changes) and changes[-1] > SWITCHED_FRACTION * self.contact_points
+        self.record.switched_solves += switched
+        self.linear.set_tolerance(forcing_term(res[-1], res[-2] if len(res) > 1 else None,
+                                               target, self.linear.tightest, switched))
+
     def _converged(self, snes, it, norms):
         xnorm, ynorm, fnorm = norms
         rtol, atol, stol, max_it = snes.getTolerances()
@@ -648,6 +677,39 @@ class SemiSmoothNewton:
         return bool(out["converged"])
 
 
+class _LinearShell:
+    """PETSc's Newton (a PETSc line search, ``newtonls``) solves its directions by the strategy.
+
+    PETSc's ``newtonls`` calls its own KSP; that KSP becomes ``preonly`` with this Python
+    preconditioner, whose application is the solver's
+    :class:`~poromech.mechanics.linear.LinearStrategy` (a factorization kept while it may be,
+    the p-multigrid with its coarse operator and block copy, the face elimination), each with
+    its own KSP configured by the same options. A failed solve is the preconditioner's failure,
+    which PETSc reports as ``DIVERGED_LINEAR_SOLVE``.
+    """
+
+    def __init__(self, solver: SemiSmoothNewton):
+        self.s = solver
+
+    def attach(self, ksp: PETSc.KSP) -> None:
+        """Make ``ksp`` (the SNES's) a ``preonly`` KSP with this preconditioner."""
+        ksp.setType(PETSc.KSP.Type.PREONLY)
+        ksp.setErrorIfNotConverged(False)
+        pc = ksp.getPC()
+        pc.setType(PETSc.PC.Type.PYTHON)
+        pc.setPythonContext(self)
+
+    def apply(self, pc, x, y) -> None:
+        s = self.s
+        t0 = time.perf_counter()
+        s.set_forcing_term()
+        solved = s.linear.solve(x, y, s.record, s.active_set)
+        s.record.time_linear += time.perf_counter() - t0
+        if not solved:
+            s.linear.forget()
+            pc.setFailedReason(PETSc.PC.FailedReason.SUBPC_ERROR)
+
+
 class _NewtonStep:
     """Python context of the SNES: the Newton direction and the line search.
 
@@ -698,14 +760,7 @@ class _NewtonStep:
         s = self.s
         snes.computeJacobian(X, s.A, s.A)
         t0 = time.perf_counter()
-        if s.inexact and hasattr(s.linear, "set_tolerance"):  # as accurate as Newton needs
-            res = s.record.residuals
-            target = snes.getTolerances()[0] * s.reference_norm
-            changes = s.record.active_set_changes
-            switched = bool(changes) and changes[-1] > SWITCHED_FRACTION * s.contact_points
-            s.record.switched_solves += switched
-            s.linear.set_tolerance(forcing_term(res[-1], res[-2] if len(res) > 1 else None,
-                                                target, s.linear.tightest, switched))
+        s.set_forcing_term()
         solved = s.linear.solve(F, Y, s.record, s.active_set)
         s.record.time_linear += time.perf_counter() - t0
         if not solved:

@@ -231,7 +231,7 @@ class MechanicsPhysics:
     def _log_linear_solver(self) -> None:
         """Say once which linear solver the mechanics runs, and why (rank 0 logs)."""
         choice = self.scene.solver.linear_solver
-        ksp = self.solver.snes.getKSP()
+        ksp = self.solver.ksp
         why = (f"solver.linear_solver {choice}" if choice != "auto" else
                f"auto: {self.fm.msh.topology.dim}D, {self.model.dof_count()} unknowns")
         k = self.solver.linear.near_nullspace_size
@@ -249,7 +249,7 @@ class MechanicsPhysics:
         """A :class:`~poromech.mechanics.condensed.CondensedContact` where it applies, else None."""
         from poromech.mechanics.condensed import MAX_FACE_UNKNOWNS, CondensedContact, applicable
 
-        m, scene, ksp = self.model, self.scene, self.solver.snes.getKSP()
+        m, scene, ksp = self.model, self.scene, self.solver.ksp
         if scene.solver.condensation and m.lam is not None and self.fm.msh.topology.dim == 3:
             log.info("the mixed contact problem is not condensed in 3D: its dense face problem "
                      "on one rank grows as the square of the fracture faces and was slower than "
@@ -286,7 +286,7 @@ class MechanicsPhysics:
         }
         if self.model.beta_sm0 is not None:
             out["beta_sm_n"], out["beta_sm_t"] = self.model.beta_sm0
-        ksp = self.solver.snes.getKSP()
+        ksp = self.solver.ksp
         out["linear_solver"] = {"kind": self.linear_solver,
                                 "choice": self.scene.solver.linear_solver,
                                 "ksp_type": ksp.getType(), "pc_type": ksp.getPC().getType()}
@@ -367,7 +367,7 @@ class MechanicsPhysics:
         face = f" (+{rec['face_iterations']} face Newton)" if rec.get("face_iterations") else ""
         # without contact conditions the problem is linear: one solve, no Newton to speak of
         what = "Newton it" if self.model.params.active else "linear solve"
-        if is_direct(self.solver.snes.getKSP()):
+        if is_direct(self.solver.ksp):
             work = f"{rec['factorizations']} factorizations"
         else:
             work = (f"{rec['factorizations']} preconditioner set-ups "
