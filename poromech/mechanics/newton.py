@@ -52,7 +52,9 @@ for residuals that are piecewise affine in the unknowns (2D contact with Coulomb
   with ``DIVERGED_LINE_SEARCH``, and a ray on which every residual is NaN or infinite with
   ``DIVERGED_FUNCTION_NANORINF``.
 
-``docs/mechanics/robustness.md`` compares it with PETSc's ``basic`` and ``bt`` searches.
+``docs/mechanics/robustness.md`` compares it with PETSc's ``basic`` and ``bt`` searches. With a
+PETSc search (``line_search``) PETSc's Newton runs the loop, and its KSP is a ``preonly`` shell
+of the same linear strategy (:class:`_LinearShell`).
 
 The direction is solved by a linear strategy (:mod:`poromech.mechanics.linear`): by default a
 factorization reused while the assembled Jacobian is bitwise unchanged (``reuse_jacobian``),
