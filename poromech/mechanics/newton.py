@@ -312,10 +312,8 @@ class SemiSmoothNewton:
         self._eliminate_faces = eliminate_faces
         self.inexact = inexact
         self.exact_dirichlet = exact_dirichlet
-        self.ksp: PETSc.KSP | None = None  # the linear strategy's KSP (_create_snes)
-        self._shell = None  # PETSc's Newton's KSP as a shell of the strategy (_LinearShell)
-        self.snes, self.linear = self._create_snes(prefix, options or {}, stale_factorization,
-                                                   modes, coarse)
+        self.snes, self.ksp, self.linear = self._create_snes(prefix, options or {},
+                                                             stale_factorization, modes, coarse)
         if inexact and reuse_jacobian and hasattr(self.linear, "lagged"):
             self.linear.lagged = True  # a Krylov solve keeps its preconditioner while it pays
         self._step = self.snes.getPythonContext() if self._is_python() else None
@@ -337,7 +335,12 @@ class SemiSmoothNewton:
     def _create_snes(self, prefix: str, options: dict, stale: bool,
                      modes: Callable[[], np.ndarray] | None,
                      coarse: Callable[[], tuple[PETSc.Mat, np.ndarray]] | None = None,
-                     ) -> tuple[PETSc.SNES, LinearStrategy]:
+                     ) -> tuple[PETSc.SNES, PETSc.KSP, LinearStrategy]:
+        """The SNES, the linear strategy's KSP and the strategy.
+
+        With poromech's search the strategy's KSP is the SNES's own; with a PETSc search it is
+        a KSP of its own, and the SNES's a shell of the strategy (:class:`_LinearShell`).
+        """
         snes = PETSc.SNES().create(self.comm)
         snes.setOptionsPrefix(prefix)
         merged = {**DEFAULT_OPTIONS, **options}
@@ -349,24 +352,23 @@ class SemiSmoothNewton:
             snes.setJacobian(self._jacobian, self.A, self.A)
             snes.setFromOptions()
             python = snes.getType() == PETSc.SNES.Type.PYTHON
-            self.ksp = snes.getKSP()
+            ksp = snes.getKSP()
             if not python:  # the strategy gets a KSP of its own, with the same options
-                self.ksp = PETSc.KSP().create(self.comm)
-                self.ksp.setOptionsPrefix(prefix)
-                self.ksp.setOperators(self.A, self.A)
-                self.ksp.setFromOptions()
-            linear = linear_strategy(self.ksp, self.A, prefix, reuse=self.reuse_jacobian,
+                ksp = PETSc.KSP().create(self.comm)
+                ksp.setOptionsPrefix(prefix)
+                ksp.setOperators(self.A, self.A)
+                ksp.setFromOptions()
+            linear = linear_strategy(ksp, self.A, prefix, reuse=self.reuse_jacobian,
                                      stale=stale, modes=modes, blocks=self._face_blocks(),
                                      coarse=coarse)
         if python:
             snes.setPythonContext(_NewtonStep(self))
         else:
-            self._shell = _LinearShell(self)
-            self._shell.attach(snes.getKSP())
+            _LinearShell(self).attach(snes.getKSP())
         snes.setConvergenceTest(self._converged)
         snes.setMonitor(self._monitor)
         self.A.setOptionsPrefix(f"{prefix}A_")
-        return snes, linear
+        return snes, ksp, linear
 
     def _face_blocks(self) -> tuple[list[int], list[int]] | None:
         """Owned sizes of the blocks and components per face of the face unknowns, or None."""
@@ -383,7 +385,7 @@ class SemiSmoothNewton:
         if self._step is not None:
             self._step.free()
         self.linear.destroy()
-        own_ksp = self.ksp if self._shell is not None else None  # not the SNES's
+        own_ksp = None if self._is_python() else self.ksp  # not the SNES's
         for obj in (self.snes, own_ksp, self.A, self.b, self.x, self._cache_x, self._cache_f,
                     self._K, self._bc_gap):
             if obj is not None:
