@@ -289,6 +289,44 @@ def test_newton_krylov_converges_like_newton_to_the_same_fixed_point(tmp_path):
     assert_same_fixed_point(runs["anderson"], runs["newtonkrylov"])
 
 
+def test_newton_krylov_from_pressures_that_start_at_zero(tmp_path):
+    """An overpressure scene (injection into a closed fracture, p⁰ = 0): at the first step the
+    ``ds`` differencing step is relative to ``|pᵀa|``, which vanishes, and falls back to
+    ``mat_mffd_umin`` (PETSc's 1e-6, perturbations of ~1e-12 Pa, the round-off of ``g``): GMRES
+    did not converge in 30 iterations, the noise of ``g`` was taken relative to ``|p| = 0``
+    and the run stopped with a ZeroDivisionError. With ``umin`` = 1 Pa Newton–Krylov solves
+    every step itself (measured: 4-5 iterations in the first step; the second, where the
+    fracture opens, takes 4-14 from one run to the next: the differencing step itself differs in
+    its last bit between runs, and the finite differences of ``g`` amplify it)."""
+    summary = run_scene(load_scene(INJECTION, ["coupling.method=newtonkrylov", "time.steps=4"]),
+                        tmp_path / "nk")
+    assert summary["status"] == "converged"
+    for rec in summary["solves"]:
+        assert rec["method"] == "newtonkrylov" and rec["fallback_from"] is None
+        assert rec["iterations"] <= 20
+    assert summary["solves"][0]["iterations"] <= 6
+
+
+def test_the_noise_of_g_at_zero_pressures_is_relative_to_g(tmp_path):
+    """``|p| = 0`` (an overpressure scene's first step): the noise estimate is measured against
+    ``|g(p)|`` instead, and the messages that quote it do not divide by zero."""
+    from poromech.coupling.fixed_point import FixedPoint
+    from poromech.scene.schema import Coupling
+
+    fp = FixedPoint(comm, 4, lambda p: np.full(4, 3.0), lambda: 1e-5,
+                    Coupling(method="picard", max_it=1))
+    try:
+        fp.start_step()
+        fp.attempt(np.zeros(4))
+        fp.P.set(0.0)
+        fp.estimate_noise()
+        assert fp.stats.pnorm == pytest.approx(6.0 * np.sqrt(comm.size))
+        assert not fp.stats.untrusted
+        assert fp.stats.relative_noise.endswith("of |p|")
+    finally:
+        fp.destroy()
+
+
 def test_fixed_point_stops_at_the_noise_of_an_ill_conditioned_darcy_solve(tmp_path):
     """A fracture permeability contrast of 1e8 makes the Darcy solve ill-conditioned: round-off
     leaves errors of ~1 Pa RMS in the pressures, ``g`` is that noisy, and the relative tolerance

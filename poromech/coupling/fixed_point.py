@@ -52,7 +52,11 @@ Array = npt.NDArray[np.float64]
 #: (``‖p‖`` ~ 5e6 on the six-fracture scene) it perturbs them by ~1e-11 of their size, where
 #: the response of ``g`` is round-off of the inner solves. With it Newton needed 32 iterations
 #: (247 ``g``) for the first step of that scene and diverged in the second; with ``ds`` 2-3 per
-#: step, 161-166 ``g`` for the 20 steps with every formulation (docs/poromechanics.md).
+#: step, 161-166 ``g`` for the 20 steps with every formulation (docs/poromechanics.md). Where
+#: ``|pᵀa|`` vanishes (pressures that start at zero: an overpressure scene's first step) ``ds``
+#: takes ``umin ‖a‖₁`` in its place, so ``umin`` is a pressure: 1 Pa (PETSc's 1e-6 perturbed the
+#: injection scene's pressures by ~1e-12 Pa and GMRES did not converge; the six-fracture
+#: scene, whose pressures are ~1e5 Pa and more, has the same residual histories with either).
 METHOD_OPTIONS: dict[str, dict[str, object]] = {
     "anderson": {"snes_type": "anderson", "snes_anderson_m": "{m}", "snes_anderson_beta": 1.0},
     "ngmres": {"snes_type": "ngmres", "snes_ngmres_m": "{m}"},
@@ -62,6 +66,7 @@ METHOD_OPTIONS: dict[str, dict[str, object]] = {
                   "snes_composite_sneses": "nrichardson,anderson",
                   "sub_0_snes_linesearch_type": "basic", "sub_1_snes_anderson_m": "{m}"},
     "newtonkrylov": {"snes_type": "newtonls", "snes_mf": "", "mat_mffd_type": "ds",
+                     "mat_mffd_umin": 1.0,
                      "snes_linesearch_type": "basic",
                      "ksp_type": "gmres", "pc_type": "none", "ksp_rtol": 1e-2,
                      "ksp_max_it": 30},
@@ -110,7 +115,7 @@ class FixedPointStats:
         residuals: ``|p - g(p)|`` at every iteration of every attempt.
         noise: Estimates of the noise of ``g``, made at stagnating iterations.
         at_noise: Converged at the noise of ``g`` rather than at the tolerance.
-        pnorm: ``|p|`` when the noise was last estimated.
+        pnorm: ``|p|`` when the noise was last estimated (``|g(p)|`` where ``p = 0``).
     """
 
     iterations: int = 0
@@ -123,6 +128,13 @@ class FixedPointStats:
     def untrusted(self) -> bool:
         """Whether the last noise estimate exceeded :data:`NOISE_LIMIT` ``|p|``."""
         return bool(self.noise) and not self.noise[-1] <= NOISE_LIMIT * self.pnorm
+
+    @property
+    def relative_noise(self) -> str:
+        """The last noise estimate relative to ``|p|``, for messages."""
+        if not self.noise:
+            return "not estimated"
+        return f"{self.noise[-1] / self.pnorm:.1e} of |p|" if self.pnorm > 0 else "|p| = 0"
 
 
 class FixedPoint:
@@ -162,6 +174,7 @@ class FixedPoint:
         self.stalled: int | None = None
         self._f0 = self._best = self._halved = np.nan
         self._halved_at = 0
+        self._gnorm = 0.0  # |g(p)| at the last evaluation
 
     def _create_snes(self, method: str, prefix: str,
                      petsc: dict) -> tuple[PETSc.SNES, PrefixedOptions]:
@@ -246,6 +259,7 @@ class FixedPoint:
             f.set(0.0)
         else:
             f.getArray()[:] = x.getArray(readonly=True) - gp
+            self._gnorm = float(np.sqrt(self.comm.allreduce(float(gp @ gp))))
         x.copy(self._last_eval)
 
     def _converged(self, snes, it, norms):
@@ -299,7 +313,9 @@ class FixedPoint:
         """
         noise = self._noise()
         self.stats.noise.append(noise)
-        self.stats.pnorm = self.P.norm() if pnorm is None else pnorm
+        pnorm = self.P.norm() if pnorm is None else pnorm
+        # pressures that start at zero (an overpressure scene's first step): the scale is g(p)
+        self.stats.pnorm = pnorm if pnorm > 0.0 else self._gnorm
         return noise
 
     def _monitor(self, snes, it, fnorm) -> None:

@@ -398,8 +398,7 @@ class Poromechanics:
         if fp.stalled is not None and fp.failure is None:
             why += f" (the best |p - g(p)| was not halved in its last {STALL_ITERATIONS})"
         if s.noise and fp.failure is None:
-            why += (f" (estimated error of the Darcy solve {s.noise[-1]:.2e}, "
-                    f"{s.noise[-1] / s.pnorm:.1e} of |p|)")
+            why += f" (estimated error of the Darcy solve {s.noise[-1]:.2e}, {s.relative_noise})"
             if s.untrusted and self.scene.coupling.fracture_stabilization == 0:
                 why += (" — the Darcy problem in g is nearly singular (sealed fractures?): set "
                         "coupling.fracture_stabilization to null or a factor > 0")
@@ -463,10 +462,10 @@ class Poromechanics:
             return False
         self._set_fracture_stabilization(t)
         log.warning("the Darcy solve inside g is not to be trusted at t = %g s (estimated error "
-                    "%.2e, %.1e of |p|: fractures sealed by the matrix?); switching on the "
+                    "%.2e, %s: fractures sealed by the matrix?); switching on the "
                     "fracture fixed-stress term (coupling.fracture_stabilization = 1) for the "
                     "rest of the run and solving the step again", t, s.noise[-1],
-                    s.noise[-1] / s.pnorm)
+                    s.relative_noise)
         return True
 
     def _set_fracture_stabilization(self, t: float) -> None:
