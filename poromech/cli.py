@@ -171,7 +171,6 @@ def _load(args, comm):
     """
     from poromech.errors import ConfigError
     from poromech.parallel import on_root
-    from poromech.run import SCENE_FILE
     from poromech.scene.loading import load_scene_and_raw
 
     restart = getattr(args, "restart", None)
@@ -180,8 +179,23 @@ def _load(args, comm):
     if args.scene is not None or args.set or args.output is not None:
         raise ConfigError("--restart OUTDIR continues that run as it was set up: give no scene, "
                           "--set or -o with it")
-    stored = Path(restart) / SCENE_FILE
-    return on_root(comm, load_scene_and_raw, stored, ())
+    return on_root(comm, _stored_run, Path(restart))
+
+
+def _stored_run(outdir: Path):
+    """The scene and mapping stored with the run in ``outdir``, which must have a checkpoint."""
+    from poromech.errors import ConfigError
+    from poromech.io.checkpoint import CHECKPOINT
+    from poromech.run import SCENE_FILE
+    from poromech.scene.loading import load_scene_and_raw
+
+    if not (outdir / SCENE_FILE).is_file():
+        raise ConfigError(f"--restart {outdir}: no poromech run there ({SCENE_FILE} is missing)")
+    if not (outdir / CHECKPOINT).is_file():
+        raise ConfigError(f"--restart {outdir}: the run there wrote no {CHECKPOINT} (a scene "
+                          "without time steps, output.checkpoint: false, or a run that stopped "
+                          "before its first step): nothing to continue from")
+    return load_scene_and_raw(outdir / SCENE_FILE, ())
 
 
 def _check(args, petsc_opts: dict, comm):

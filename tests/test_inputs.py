@@ -210,6 +210,16 @@ def test_output_directory_paths(tmp_path, capsys):
         refused(capsys, "run", scene, fragments=["'name'", repr(name)])
 
 
+def test_restart_of_a_folder_without_a_run_or_a_checkpoint(tmp_path, capsys):
+    """``--restart`` refuses, in one line before meshing, a folder with no stored scene and one
+    whose run wrote no checkpoint (here a steady scene); it raised h5py's FileNotFoundError
+    after meshing."""
+    refused(capsys, "run", "--restart", tmp_path / "none", fragments=["no poromech run there"])
+    out = tmp_path / "steady"
+    assert cli(capsys, "run", "sneddon", "-o", out, "--set", "mesh.size=0.5")[0] == 0
+    refused(capsys, "run", "--restart", out, fragments=["wrote no checkpoint.h5"])
+
+
 def test_output_directory_lock(tmp_path, capsys):
     out = tmp_path / "busy"
     with output_directory(out):
