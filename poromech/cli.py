@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import re
 import sys
 import time
 import traceback
@@ -368,10 +369,36 @@ def _end(comm, code: int, line: str, err: BaseException | None = None) -> int:
     return code  # pragma: no cover
 
 
+def _petsc_error(err: BaseException) -> str | None:
+    """A PETSc error as one line: the innermost routine and PETSc's messages; None otherwise.
+
+    petsc4py's message is ``error code N`` followed by PETSc's trace, one ``[rank] routine() at
+    file:line`` per frame, then the error class and the detail. A Python exception raised
+    inside a PETSc callback (poromech's Newton step, a line search) reaches here as PETSc's
+    error 101 whose cause is that exception.
+    """
+    from petsc4py import PETSc
+
+    while isinstance(err, PETSc.Error) and isinstance(err.__cause__, BaseException):
+        err = err.__cause__
+    if not isinstance(err, PETSc.Error):
+        return None if err is None else f"{type(err).__name__}: {str(err).strip()}"
+    frames, messages = [], []
+    for line in str(err).strip().splitlines()[1:]:
+        text = re.sub(r"^\[\d+\]\s*", "", line).strip()
+        (frames if re.search(r"\(\) at \S", text) else messages).append(text)
+    where = f" in {frames[-1].split(' at ')[0]}" if frames else ""
+    return f"PETSc error {err.ierr}{where}" + "".join(f": {m}" for m in messages if m)
+
+
 def _unexpected(err: BaseException, comm, verbose: bool) -> int:
     """One line (the traceback with -v), status 1."""
+    from petsc4py import PETSc
+
     first = str(err).strip().splitlines()[0] if str(err).strip() else ""
     line = f"error: {type(err).__name__}" + (f": {first}" if first else "")
+    if isinstance(err, PETSc.Error):
+        line = f"error: {_petsc_error(err)}".splitlines()[0]
     if not verbose:
         line += " (run with -v for the traceback)"
     return _end(comm, EXIT_ERROR, line, err if verbose else None)

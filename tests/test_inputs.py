@@ -220,6 +220,37 @@ def test_restart_of_a_folder_without_a_run_or_a_checkpoint(tmp_path, capsys):
     refused(capsys, "run", "--restart", out, fragments=["wrote no checkpoint.h5"])
 
 
+def test_a_petsc_error_is_one_line_with_its_routine_and_messages():
+    """A PETSc error reaches the user as its innermost routine and PETSc's messages (it was
+    "Error: error code 56"), and a Python exception raised inside a PETSc callback as that
+    exception (it was "error code 101")."""
+    from petsc4py import PETSc
+
+    from poromech.cli import _petsc_error
+
+    A = PETSc.Mat().createAIJ([4, 4], comm=PETSc.COMM_SELF)
+    A.setUp()
+    A.assemble()
+    A.shift(1.0)
+    ksp = PETSc.KSP().create(PETSc.COMM_SELF)
+    ksp.setOperators(A)
+    ksp.setType("cg")
+    ksp.setNormType(PETSc.KSP.NormType.UNPRECONDITIONED)
+    ksp.setPCSide(PETSc.PC.Side.RIGHT)
+    with pytest.raises(PETSc.Error) as caught:
+        ksp.setUp()
+    line = _petsc_error(caught.value)
+    assert line.startswith("PETSc error 56 in KSPSetUpNorms_Private(): ")
+    assert line.endswith("KSP cg does not support norm type UNPRECONDITIONED with "
+                         "preconditioner side RIGHT")
+    assert "\n" not in line and " at /" not in line
+    wrapped = PETSc.Error(101)
+    wrapped.__cause__ = ValueError("a bad step")
+    assert _petsc_error(wrapped) == "ValueError: a bad step"
+    for obj in (ksp, A):
+        obj.destroy()
+
+
 def test_output_directory_lock(tmp_path, capsys):
     out = tmp_path / "busy"
     with output_directory(out):
