@@ -213,11 +213,13 @@ def test_output_directory_paths(tmp_path, capsys):
 def test_restart_of_a_folder_without_a_run_or_a_checkpoint(tmp_path, capsys):
     """``--restart`` refuses, in one line before meshing, a folder with no stored scene and one
     whose run wrote no checkpoint (here a steady scene); it raised h5py's FileNotFoundError
-    after meshing."""
+    after meshing, and overwrote the finished run's summary.json with the error."""
     refused(capsys, "run", "--restart", tmp_path / "none", fragments=["no poromech run there"])
     out = tmp_path / "steady"
     assert cli(capsys, "run", "sneddon", "-o", out, "--set", "mesh.size=0.5")[0] == 0
     refused(capsys, "run", "--restart", out, fragments=["wrote no checkpoint.h5"])
+    # the refused restart leaves the finished run's record as it was
+    assert json.loads((out / "summary.json").read_text())["status"] == "converged"
 
 
 def test_a_petsc_error_is_one_line_with_its_routine_and_messages():

@@ -279,9 +279,11 @@ def test_network_p2_p_multigrid_matches_the_direct_solve(formulation, tmp_path):
 
 def test_network_p_multigrid_falls_back_to_sor(tmp_path, monkeypatch):
     """A p-multigrid solve that does not converge within ``FALLBACK_IT`` GMRES iterations with
-    point-block Jacobi on P2 is repeated with SOR, kept for the rest of the run (point-block
-    Jacobi stalled on the 3D fault scene's coarse P2 mesh). Forced here with a limit of 1: the
-    run converges, ends with SOR, and its states are those of the direct solve."""
+    point-block Jacobi on P2 is repeated with Chebyshev and SOR, then with plain SOR sweeps,
+    each kept for the rest of the run (point-block Jacobi stalled on the 3D fault scene's coarse
+    P2 mesh, and Chebyshev with SOR too on 2 ranks). Forced here with a limit of 1, which the
+    first two miss: the run converges, ends with SOR sweeps, and its states are those of the
+    direct solve."""
     import poromech.mechanics.linear as linear
 
     monkeypatch.setattr(linear, "FALLBACK_IT", 1)
@@ -293,7 +295,7 @@ def test_network_p_multigrid_falls_back_to_sor(tmp_path, monkeypatch):
         summary = json.loads((tmp_path / name / "summary.json").read_text())
         assert summary["status"] == "converged"
         states[name] = [r["state"] for r in read_table(tmp_path / name / "fractures.csv")]
-    assert summary["linear_solver"]["p_multigrid"]["fine_smoother"] == "sor"
+    assert summary["linear_solver"]["p_multigrid"]["fine_smoother"] == "richardson/sor"
     assert states["pmg"] == states["direct"]
 
 

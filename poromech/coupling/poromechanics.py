@@ -264,9 +264,10 @@ class Poromechanics:
         if not rec.converged:
             first = recs[0]
             what = "contact Newton" if self.model.params.active else "mechanics solve"
+            linear = f" ({first.linear_failure})" if first.linear_failure else ""
             raise EvaluationFailure(
                 f"{what} did not converge inside the fixed point: {first.reason} after "
-                f"{first.iterations} iterations; residual history "
+                f"{first.iterations} iterations{linear}; residual history "
                 + ", ".join(f"{r:.3e}" for r in first.residuals)
                 + (f"; nor by continuation from the last converged pressures ({rec.reason} after "
                    f"{rec.iterations} iterations)" if len(recs) > 1 else ""))
@@ -326,9 +327,11 @@ class Poromechanics:
         self.model.set_pressures(pb.cell_pressure, pb.fracture_pressure)
         rec = self.mech.solve_contact()
         if not rec.converged:
+            linear = f" ({rec.linear_failure})" if rec.linear_failure else ""
             raise SolverError(
                 f"the initial mechanical equilibrium under p⁰ did not converge: {rec.reason} "
-                f"after {rec.iterations} iterations", rec.reason, rec.residuals, rec.as_dict())
+                f"after {rec.iterations} iterations{linear}", rec.reason, rec.residuals,
+                rec.as_dict())
         self.div0 = self.model.cell_divergence()
         aperture = np.maximum(self.d0 - self._jump_n(), APERTURE_FLOOR * self.d0)
         pb.set_aperture(aperture)

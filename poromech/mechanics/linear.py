@@ -212,13 +212,17 @@ TRIAL_BACKOFF = 4
 #: The level smoothers chosen between, the first one first.
 SMOOTHERS = ("sor", "jacobi")
 #: A p-multigrid solve (:mod:`poromech.mechanics.multigrid`) that has not converged in
-#: ``FALLBACK_IT`` GMRES iterations with point-block Jacobi on P2 is repeated with
-#: ``FALLBACK_SMOOTHER``, kept for the rest of the run. Point-block Jacobi took 10-60 iterations
-#: per solve wherever it converged, and stalled on the 3D fault scene's coarse uniform P2 mesh
-#: (1,000 iterations from 9e7 to 4e6 at its first step, exact coarse solve or not), where SOR
-#: and point Jacobi converge.
+#: ``FALLBACK_IT`` GMRES iterations with point-block Jacobi on P2 is repeated with the next
+#: smoother of ``FALLBACK_SMOOTHERS`` (the P2 level's KSP and PC types), kept for the rest of
+#: the run, and so on down the list; the last one solves with the options' iteration limit.
+#: Point-block Jacobi took 10-60 iterations per solve wherever it converged, and stalled on the
+#: 3D fault scene's coarse uniform P2 mesh (1,000 iterations from 9e7 to 4e6 at its first step,
+#: exact coarse solve or not), where Chebyshev with SOR converges on 1 rank (12 iterations). On
+#: 2 ranks (SOR local to each rank) Chebyshev with SOR stalled too (1,000 iterations from 1.1e9
+#: to 6.6e7, with an exact coarse solve or 30 eigenvalue-estimate steps as well), where plain
+#: SOR sweeps (Richardson), which need no spectrum estimate, converge in 17 and 9 iterations.
 FALLBACK_IT = 200
-FALLBACK_SMOOTHER = "sor"
+FALLBACK_SMOOTHERS = (("chebyshev", "sor"), ("richardson", "sor"))
 
 
 def _other_smoother(smoother: str) -> str:
@@ -717,30 +721,44 @@ class IterativeSolver:
         record.linear_iterations += its
         return its, ksp.getConvergedReason() > 0
 
+    def _fallbacks(self) -> tuple[tuple[str, str], ...]:
+        """The P2 smoothers (KSP, PC) a failed p-multigrid solve would still fall back to."""
+        if self.multigrid is None:
+            return ()
+        current = self.multigrid.level_smoother
+        if current in FALLBACK_SMOOTHERS:
+            return FALLBACK_SMOOTHERS[FALLBACK_SMOOTHERS.index(current) + 1:]
+        return FALLBACK_SMOOTHERS
+
     def _fallback_open(self) -> bool:
-        """Whether a failed solve would still switch the p-multigrid's P2 smoother to SOR."""
-        return self.multigrid is not None and self.multigrid.smoother != FALLBACK_SMOOTHER
+        """Whether a failed solve would still switch the p-multigrid's P2 smoother."""
+        return bool(self._fallbacks())
 
     def _solve_or_fall_back(self, F: PETSc.Vec, Y: PETSc.Vec, record) -> tuple[int, bool]:
-        """A p-multigrid solve within :data:`FALLBACK_IT` iterations, repeated with SOR if not.
+        """A p-multigrid solve within :data:`FALLBACK_IT` iterations, else the next smoother's.
 
-        If the solve does not converge there (or breaks down), the P2 smoother becomes
-        :data:`FALLBACK_SMOOTHER` for the rest of the run and the solve is repeated with the
-        options' iteration limit (collective).
+        Down :data:`FALLBACK_SMOOTHERS` (collective): each smoother that does not converge there
+        (or breaks down) is replaced by the next one for the rest of the run, and the solve
+        repeated; the last one solves with the options' iteration limit.
 
         Returns:
             The iterations of the last solve, and whether it converged.
         """
         its, converged = self._counted_solve(F, Y, record, FALLBACK_IT)
-        if converged:
-            return its, True
-        if self.comm.rank == 0:
-            log.info("p-multigrid P2 smoother: %s (%s did not converge in %d GMRES "
-                     "iterations: %s)", FALLBACK_SMOOTHER, self.multigrid.smoother, its,
-                     ksp_reason_name(self.ksp.getConvergedReason()))
-        self.multigrid.set_smoother(FALLBACK_SMOOTHER)
-        self._set_up(record, rebuild=True)
-        return self._counted_solve(F, Y, record)
+        fallbacks = self._fallbacks()
+        for k, (ksp_type, pc_type) in enumerate(fallbacks):
+            if converged:
+                break
+            failed = self.multigrid.smoother
+            self.multigrid.set_smoother(pc_type, ksp_type)
+            if self.comm.rank == 0:
+                log.info("p-multigrid P2 smoother: %s (%s did not converge in %d GMRES "
+                         "iterations: %s)", self.multigrid.smoother, failed, its,
+                         ksp_reason_name(self.ksp.getConvergedReason()))
+            self._set_up(record, rebuild=True)
+            last = k == len(fallbacks) - 1
+            its, converged = self._counted_solve(F, Y, record, None if last else FALLBACK_IT)
+        return its, converged
 
     def _set_up(self, record, rebuild: bool = False) -> None:
         """Set the preconditioner up for the current matrix, with :attr:`smoother`.

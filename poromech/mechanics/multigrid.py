@@ -109,13 +109,22 @@ class PMultigrid:
         self._nullspace = None
 
     @property
-    def smoother(self) -> str:
-        """The fine level's smoother (its PC type)."""
-        return self.pc.getMGSmoother(1).getPC().getType()
+    def level_smoother(self) -> tuple[str, str]:
+        """The fine level's KSP and PC types."""
+        smoother = self.pc.getMGSmoother(1)
+        return smoother.getType(), smoother.getPC().getType()
 
-    def set_smoother(self, smoother: str) -> None:
-        """Make ``smoother`` (a PC type) the P2 level's; the next set-up builds it."""
-        self.pc.getMGSmoother(1).getPC().setType(smoother)
+    @property
+    def smoother(self) -> str:
+        """The fine level's smoother: its PC type, ``richardson/PC`` for plain sweeps."""
+        ksp_type, pc_type = self.level_smoother
+        return pc_type if ksp_type == PETSc.KSP.Type.CHEBYSHEV else f"{ksp_type}/{pc_type}"
+
+    def set_smoother(self, smoother: str, ksp_type: str = PETSc.KSP.Type.CHEBYSHEV) -> None:
+        """Make ``smoother`` (a PC type) with ``ksp_type`` the P2 level's (built at set-up)."""
+        level = self.pc.getMGSmoother(1)
+        level.setType(ksp_type)
+        level.getPC().setType(smoother)
 
     def set_up(self, A: PETSc.Mat) -> PETSc.Mat:
         """The levels' operators of the Jacobian ``A`` (collective); the KSP's operator.
