@@ -197,6 +197,22 @@ def test_petsc_option_checks():
         scene_from_dict(mechanics_scene(solver={"petsc": {"mech_ksp_type": "cg"}}))
 
 
+def test_a_newton_type_coupling_needs_its_matrix_free_jacobian():
+    """``-coupling_snes_type newtonls`` without ``-snes_mf`` made PETSc difference ``g`` once per
+    pressure unknown (19,595 ``g`` in the first step of the injected disc, a small run timed
+    out): refused before meshing, unless the method is Newton–Krylov or the option asks for
+    the matrix-free Jacobian."""
+    scene = load_scene(ROOT / "configs" / "injection.yaml")
+    for opts in ({"coupling_snes_type": "newtonls"}, {"coupling_fallback_snes_type": "newtontr"}):
+        with pytest.raises(PetscOptionError, match="newtonkrylov"):
+            check_petsc_options(opts, scene)
+    check_petsc_options({"coupling_snes_type": "newtonls", "coupling_snes_mf": ""}, scene)
+    check_petsc_options({"coupling_snes_type": "ngmres"}, scene)
+    nk = load_scene(ROOT / "configs" / "injection.yaml", ["coupling.method=newtonkrylov"])
+    check_petsc_options({"coupling_snes_type": "newtontr"}, nk)
+    check_petsc_options({"mech_snes_type": "newtonls"}, scene)  # the contact Newton: assembled
+
+
 # -- output directory ----------------------------------------------------------------------------
 def test_output_directory_paths(tmp_path, capsys):
     afile = tmp_path / "file"
