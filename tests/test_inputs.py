@@ -193,6 +193,9 @@ def test_petsc_option_checks():
                          "mech_stale_ksp_max_it": "5"})
     with pytest.raises(PetscOptionError, match="needs a KSP type"):
         check_petsc_options({"flow_ksp_type": ""})
+    # the examples are types this PETSc has (it has no hypre; they listed it)
+    with pytest.raises(PetscOptionError, match=r"\(e\.g\. lu, cholesky, gamg, jacobi"):
+        check_petsc_options({"mech_pc_type": "hypre"})
     with pytest.raises(ConfigError, match="without the mech_ prefix"):
         scene_from_dict(mechanics_scene(solver={"petsc": {"mech_ksp_type": "cg"}}))
 

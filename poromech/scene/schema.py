@@ -218,8 +218,8 @@ class MeshSpec:
                                    gt=0)
     )
     refinement: int = field(
-        default=0, metadata=doc("uniform refinement level m (cells x4, fracture faces x2)", "",
-                                min=0, max=7)
+        default=0, metadata=doc("uniform refinement level m (each level: cells x4 and fracture "
+                                "faces x2 in 2D, x8 and x4 in 3D)", "", min=0, max=7)
     )
     zones: tuple[MeshZone, ...] = field(
         default=(), metadata=doc("balls of finer mesh (below)")
