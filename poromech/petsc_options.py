@@ -204,6 +204,26 @@ def check_petsc_options(cli_options: Mapping[str, str], scene=None) -> None:
             if value is not None:
                 _check_type(name, value, f"scene key '{key}.{name}'")
     _check_coupling_jacobian(cli_options, scene)
+    _check_contact_newton(cli_options, scene)
+
+
+def _check_contact_newton(cli_options: Mapping[str, str], scene) -> None:
+    """Refuse a SNES of one linear step for the mechanics of a scene with contact conditions.
+
+    ``ksponly`` solves one Newton direction and reports ``CONVERGED_ITS`` whatever the residual:
+    a contact problem stopped there was written as converged with its active set still changing.
+    """
+    if getattr(scene, "physics", None) not in ("mechanics", "poromechanics") \
+            or scene.contact.formulation == "none":
+        return
+    given = "mech_snes_type" in cli_options
+    snes_type = cli_options.get("mech_snes_type", scene.solver.petsc.get("snes_type"))
+    if snes_type in ("ksponly", "ksptransposeonly"):
+        where = "PETSc option '-mech_snes_type'" if given else "scene key 'solver.petsc.snes_type'"
+        raise PetscOptionError(
+            f"{where} = {snes_type!r} takes one linear step and does not check the contact "
+            f"conditions of contact.formulation {scene.contact.formulation}: use the default "
+            "(poromech's semi-smooth Newton) or newtonls")
 
 
 def _check_coupling_jacobian(cli_options: Mapping[str, str], scene) -> None:

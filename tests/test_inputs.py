@@ -216,6 +216,17 @@ def test_a_newton_type_coupling_needs_its_matrix_free_jacobian():
     check_petsc_options({"mech_snes_type": "newtonls"}, scene)  # the contact Newton: assembled
 
 
+def test_one_linear_step_is_refused_for_contact():
+    """``-mech_snes_type ksponly`` reported a contact problem converged after one linear step
+    (its residual at 7 % of the initial, 112 contact points switching): refused before meshing
+    with contact conditions, allowed for open fractures (one linear solve is the solution)."""
+    scene = load_scene(ROOT / "configs" / "network3d.yaml")
+    with pytest.raises(PetscOptionError, match="does not check the contact conditions"):
+        check_petsc_options({"mech_snes_type": "ksponly"}, scene)
+    check_petsc_options({"mech_snes_type": "ksponly"},
+                        load_scene(ROOT / "configs" / "penny.yaml"))
+
+
 # -- output directory ----------------------------------------------------------------------------
 def test_output_directory_paths(tmp_path, capsys):
     afile = tmp_path / "file"
@@ -572,3 +583,17 @@ def test_mesh_zones_checked_before_meshing(caplog):
     caplog.clear()
     scene_from_dict(raw)
     assert not any("zones" in r.getMessage() for r in caplog.records)
+
+
+def test_condensation_in_3d_is_reported_as_without_effect(caplog):
+    """The condensed ``mixed`` solve is 2D only: ``solver.condensation`` in a 3D scene is
+    reported by the one-line warning of keys without effect (it changed nothing silently)."""
+    caplog.clear()
+    load_scene(ROOT / "configs" / "network3d.yaml",
+               ["contact.formulation=mixed", "solver.condensation=false"])
+    assert any("'solver.condensation' has no effect: the condensed solve is 2D only"
+               in r.getMessage() for r in caplog.records)
+    caplog.clear()
+    load_scene(ROOT / "configs" / "six_fractures_mechanics.yaml",
+               ["contact.formulation=mixed", "solver.condensation=false"])
+    assert not any("condensation" in r.getMessage() for r in caplog.records)

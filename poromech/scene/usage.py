@@ -115,13 +115,14 @@ def unused_keys(scene: Scene, given: list[str], geo: PlaneGeometry) -> list[Unus
             if not any(u.key == refused for u in out):
                 out.append(Unused(refused, why, True))
             continue
-        reason = _conditional(scene, plain, has_fractures) or _by_entry(scene, key, geo)
+        reason = (_conditional(scene, plain, has_fractures, geo.dim)
+                  or _by_entry(scene, key, geo))
         if reason:
             out.append(Unused(key, reason, False))
     return out
 
 
-def _conditional(scene: Scene, key: str, has_fractures: bool) -> str | None:
+def _conditional(scene: Scene, key: str, has_fractures: bool, dim: int = 2) -> str | None:
     """Why ``key`` (indices stripped) has no effect under the scene's other choices, or None."""
     head, _, rest = key.partition(".")
     mechanics = scene.physics in ("mechanics", "poromechanics")
@@ -147,6 +148,9 @@ def _conditional(scene: Scene, key: str, has_fractures: bool) -> str | None:
             return "no contact conditions: the mechanics is one linear solve per step"
         if rest == "condensation" and (c.formulation != "mixed" or scene.degree < 2):
             return "the condensed solve is that of contact.formulation mixed with degree 2"
+        if rest == "condensation" and dim == 3:
+            return ("the condensed solve is 2D only (in 3D its dense face problem on one rank "
+                    "grows as the square of the fracture faces)")
     if key == "solver.predictor" and mechanics and not transient:
         return "the scene has no time steps (one solve)"
     if key == "material.biot" and scene.physics == "mechanics":
