@@ -25,6 +25,7 @@ solver read (a misspelled name, or an option for a solver this scene does not bu
 from __future__ import annotations
 
 import logging
+import re
 from collections.abc import Mapping
 
 import dolfinx_solver  # noqa: F401  (MPI before petsc4py)
@@ -157,6 +158,27 @@ def _check_type(name: str, value, where: str) -> None:
                                    f"(e.g. {present})")
 
 
+#: Options whose value is a number (name endings): PETSc refuses another value only when the
+#: solver reads it, after meshing and without naming the option.
+_REAL = re.compile(r"(^|_)(rtol|atol|stol|divtol|dtol|threshold|damping)$")
+_INTEGER = re.compile(r"(^|_)(max_it|max_funcs|restart|lag_jacobian|lag_preconditioner)$")
+
+
+def _check_number(name: str, value, where: str) -> None:
+    """Refuse a value that is not a number for an option that takes one."""
+    integer = bool(_INTEGER.search(name))
+    if not integer and not _REAL.search(name):
+        return
+    text = str(value).strip()
+    try:
+        number = int(text) if integer else float(text)
+    except ValueError:
+        kind = "an integer" if integer else "a number"
+        raise PetscOptionError(f"{where} = {value!r} needs {kind}") from None
+    if integer and number < 0 and not name.endswith(("lag_jacobian", "lag_preconditioner")):
+        raise PetscOptionError(f"{where} = {value!r} needs a non-negative integer")
+
+
 def _is_global(name: str) -> bool:
     return any(name.startswith(g) if g.endswith("_") else name == g or name.startswith(g + "_")
                for g in GLOBAL_OPTIONS)
@@ -196,6 +218,7 @@ def check_petsc_options(cli_options: Mapping[str, str], scene=None) -> None:
                 "option such as -log_view"
             )
         _check_type(name, value, f"PETSc option '-{name}'")
+        _check_number(name, value, f"PETSc option '-{name}'")
     if scene is None:
         return
     for prefix, table in scene_options(scene).items():
@@ -203,6 +226,7 @@ def check_petsc_options(cli_options: Mapping[str, str], scene=None) -> None:
         for name, value in table.items():  # names were checked by the scene loader
             if value is not None:
                 _check_type(name, value, f"scene key '{key}.{name}'")
+                _check_number(name, value, f"scene key '{key}.{name}'")
     _check_coupling_jacobian(cli_options, scene)
     _check_contact_newton(cli_options, scene)
 

@@ -193,6 +193,15 @@ def test_petsc_option_checks():
                          "mech_stale_ksp_max_it": "5"})
     with pytest.raises(PetscOptionError, match="needs a KSP type"):
         check_petsc_options({"flow_ksp_type": ""})
+    # numbers are numbers, before meshing (PETSc said "error 63" after it, naming no option)
+    for name, value, kind in (("mech_ksp_rtol", "abc", "a number"),
+                              ("mech_ksp_max_it", "1.5", "an integer"),
+                              ("coupling_snes_max_it", "-5", "a non-negative integer")):
+        with pytest.raises(PetscOptionError) as caught:
+            check_petsc_options({name: value})
+        assert f"'-{name}' = '{value}' needs {kind}" in str(caught.value)
+    check_petsc_options({"mech_ksp_rtol": "1e-8", "mech_ksp_max_it": "50",
+                         "mech_snes_lag_jacobian": "-2", "mech_ksp_gmres_restart": "100"})
     # the examples are types this PETSc has (it has no hypre; they listed it)
     with pytest.raises(PetscOptionError, match=r"\(e\.g\. lu, cholesky, gamg, jacobi"):
         check_petsc_options({"mech_pc_type": "hypre"})
