@@ -346,3 +346,25 @@ def test_2d_outputs_are_the_former_ones_renumbered(tmp_path):
                           "traction_t", "state"]
     assert np.array_equal(rows["jump_n"], [float(f"{v:.9e}") for v in faces["jump_n"][order]])
     assert json.loads((new / "summary.json").read_text())["mpi_ranks"] == 1
+
+
+def test_a_probe_typed_to_a_few_digits_lies_in_its_fracture():
+    """A line in an inclined fracture written to 4-5 digits is ~5e-6 off its plane: it still
+    samples the fracture (its columns were empty), and a line 1e-3 away does not."""
+    import dolfinx
+
+    from poromech.io.probes import LineSampler
+
+    msh = dolfinx.mesh.create_unit_cube(MPI.COMM_WORLD, 2, 2, 2)
+    c, s = np.cos(0.5), np.sin(0.5)  # a triangle in the plane z = 0.3 + tan(0.5) x
+    tri = np.array([[[0.0, 0.0, 0.3], [c, 0.0, 0.3 + s], [0.0, 1.0, 0.3]]])
+    keys = np.array([0.0])
+    on = lambda x, y: [x, y, 0.3 + np.tan(0.5) * x]  # noqa: E731
+    for off, found in ((0.0, True), (5e-6, True), (1e-3, False)):
+        start, end = np.array(on(0.1, 0.2)), np.array(on(0.3, 0.3))
+        start[2] += off
+        end[2] -= off
+        probe = LineSampler(msh, np.round(start, 5) if off == 0 else start, end, 5,
+                            faces=(tri, keys))
+        hit = MPI.COMM_WORLD.allreduce(bool(np.any(probe._face >= 0)), op=MPI.LOR)
+        assert hit == found, off

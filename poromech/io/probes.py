@@ -44,6 +44,13 @@ def _global_choice(comm: MPI.Comm, key: Array) -> npt.NDArray[np.bool_]:
     return np.isfinite(key) & (key == best)
 
 
+#: 3D: a probe's line lies in a fracture's plane when both ends are within this fraction of the
+#: scene's scale (line length or coordinates) of it. Coordinates of a line in an inclined
+#: fracture written to 4-5 digits are ~5e-6 of the scale off its plane: with 1e-8 such a
+#: probe had empty fracture columns and no warning.
+PLANE_TOLERANCE = 1e-5
+
+
 class LineSampler:
     """Sample points on the segment ``[start, end]`` and where they lie (collective).
 
@@ -113,8 +120,9 @@ class LineSampler:
         e1, e2 = triangles[:, 1] - a, triangles[:, 2] - a
         normal = np.cross(e1, e2)
         normal /= np.linalg.norm(normal, axis=1)[:, None]
-        tol = 1e-8 * max(float(np.linalg.norm(self.end - self.start)),
-                         float(np.abs(triangles).max(initial=1.0)))
+        # a line typed to a few digits in an inclined plane is off it by ~1e-5 of the scale
+        tol = PLANE_TOLERANCE * max(float(np.linalg.norm(self.end - self.start)),
+                                    float(np.abs(triangles).max(initial=1.0)))
         coplanar = ((np.abs(np.einsum("ni,ni->n", self.start - a, normal)) <= tol)
                     & (np.abs(np.einsum("ni,ni->n", self.end - a, normal)) <= tol))
         key = np.full(len(self.points), np.inf)
