@@ -170,8 +170,8 @@ def _check_number(name: str, value, where: str) -> None:
     if not integer and not _REAL.search(name):
         return
     text = str(value).strip()
-    try:
-        number = int(text) if integer else float(text)
+    try:  # a real option may be a list (pc_gamg_threshold: one value per level)
+        number = int(text) if integer else min(float(v) for v in text.split(","))
     except ValueError:
         kind = "an integer" if integer else "a number"
         raise PetscOptionError(f"{where} = {value!r} needs {kind}") from None

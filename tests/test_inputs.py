@@ -201,7 +201,8 @@ def test_petsc_option_checks():
             check_petsc_options({name: value})
         assert f"'-{name}' = '{value}' needs {kind}" in str(caught.value)
     check_petsc_options({"mech_ksp_rtol": "1e-8", "mech_ksp_max_it": "50",
-                         "mech_snes_lag_jacobian": "-2", "mech_ksp_gmres_restart": "100"})
+                         "mech_snes_lag_jacobian": "-2", "mech_ksp_gmres_restart": "100",
+                         "mech_pc_gamg_threshold": "0.01,0.005"})
     # the examples are types this PETSc has (it has no hypre; they listed it)
     with pytest.raises(PetscOptionError, match=r"\(e\.g\. lu, cholesky, gamg, jacobi"):
         check_petsc_options({"mech_pc_type": "hypre"})
