@@ -221,7 +221,8 @@ class MechanicsPhysics:
         self.predictor = StepPredictor(model.unknowns, fm.comm, rule != "last",
                                        self._start_merit if rule == "lower_residual" else None)
         if scene.time is not None:
-            log.info("each step's contact Newton starts from the %s (solver.predictor %s)",
+            what = "contact Newton" if not model.linear else "linear solve (initial guess)"
+            log.info("each step's %s starts from the %s (solver.predictor %s)", what,
                      START_NAMES[rule], scene.solver.predictor)
         self._saved = [f.x.array.copy() for f in model.unknowns]
         self._series: dict[str, XDMFSeries] = {}
