@@ -171,8 +171,11 @@ def header() -> list[str]:
         "scene (without the `mech_` / `flow_` / `coupling_` prefix), or on the command line "
         "with it (`-mech_snes_monitor`), which wins. Solver types (`*ksp_type`, `*pc_type`, "
         "`*snes_type`, `*snes_linesearch_type`, `*pc_factor_mat_solver_type`) are checked "
-        "against the PETSc build before meshing; command-line options no solver used are "
-        "reported at the end.",
+        "against the PETSc build before meshing, and so are numbers (`*rtol`, `*atol`, "
+        "`*max_it`, …); also refused there: a Newton-type `coupling_snes_type` without its "
+        "matrix-free Jacobian (`coupling.method: newtonkrylov` is the coupled Newton) and a "
+        "one-step `mech_snes_type` (`ksponly`) with contact conditions. Command-line options "
+        "no solver used are reported at the end.",
         "",
         "**No key is ignored** (`poromech/scene/usage.py`): a section of another physics is "
         "refused (`flow` or `coupling` in a mechanics scene; `material`, `contact`, `solver`, "
