@@ -607,3 +607,12 @@ def test_condensation_in_3d_is_reported_as_without_effect(caplog):
     load_scene(ROOT / "configs" / "six_fractures_mechanics.yaml",
                ["contact.formulation=mixed", "solver.condensation=false"])
     assert not any("condensation" in r.getMessage() for r in caplog.records)
+
+
+def test_a_section_set_to_null_is_not_given():
+    """``--set flow=null`` takes a coupled scene's flow section away for a mechanics run (it
+    was refused as a section of another physics); a flow section with content still is."""
+    scene = load_scene(ROOT / "configs" / "injection.yaml", ["physics=mechanics", "flow=null"])
+    assert scene.physics == "mechanics" and scene.flow is None
+    with pytest.raises(ConfigError, match="'flow' is not allowed"):
+        load_scene(ROOT / "configs" / "injection.yaml", ["physics=mechanics"])
