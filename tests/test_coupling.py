@@ -543,3 +543,15 @@ def test_scene_options_read_at_set_up_reach_petsc_and_do_not_linger(tmp_path):
                          "mech_condensed_mat_mumps_icntl_14", "mech_condensed_mat_mumps_icntl_24"):
                 assert not db.hasName(name), name
 
+
+
+def test_a_diverging_short_step_switches_on_the_fracture_fixed_stress(tmp_path):
+    """A first step of 1e-6 s on the six-fracture scene: the fractures' volume change over it
+    dominates their balance and ``g`` is expansive (|p - g(p)| 2.2e5 → 7.2e12 Pa at every cut,
+    the run failed; the Darcy solve was to be trusted, so β_f stayed off). A diverged attempt
+    now switches β_f on in the automatic mode, and the step converges."""
+    scene = load_scene(ROOT / "configs" / "six_fractures.yaml",
+                       ["time={times: [1.0e-6]}", "mesh.size=0.5", "contact.formulation=nitsche"])
+    summary = run_scene(scene, tmp_path / "short")
+    assert summary["status"] == "converged"
+    assert summary["coupling"]["fracture_stabilization_from"] == pytest.approx(1e-6)

@@ -31,6 +31,7 @@ import dolfinx_solver  # noqa: F401
 import numpy as np
 import numpy.typing as npt
 from mpi4py import MPI
+from petsc4py import PETSc
 
 from poromech.coupling.fixed_point import STALL_ITERATIONS, EvaluationFailure, FixedPoint
 from poromech.coupling.fixed_stress import (
@@ -371,7 +372,7 @@ class Poromechanics:
         t0 = time.perf_counter()
         method = self.scene.coupling.method
         reason = self._attempt(t, method, retry=False)
-        if reason <= 0 and self._switch_on_fracture_stabilization(t):
+        if reason <= 0 and self._switch_on_fracture_stabilization(t, reason):
             reason = self._attempt(t, method)
         fallback_from = None
         # only for a failure of the iteration itself: not of an inner solve (a step cut answers
@@ -446,13 +447,22 @@ class Poromechanics:
             "converged_at_noise": s.at_noise,
         }
 
-    def _switch_on_fracture_stabilization(self, t: float) -> bool:
-        """Switch ``β_f`` on (factor 1) after a failure with an untrustworthy Darcy solve.
+    def _switch_on_fracture_stabilization(self, t: float, reason: int) -> bool:
+        """Switch ``β_f`` on (factor 1) after a failure that the fracture storage explains.
 
         Only with ``coupling.fracture_stabilization: null``, fractures and time steps, once per
-        run. Untrustworthy: the estimated error of the last Darcy solve in ``g`` exceeds
-        :data:`~poromech.coupling.fixed_point.NOISE_LIMIT` ``|p|`` (fractures sealed by a nearly
-        impervious matrix: without fracture storage their pressure is nearly undetermined).
+        run, after an attempt that failed (PETSc's ``reason``) either
+
+        * with an untrustworthy Darcy solve: its estimated error in ``g`` exceeds
+          :data:`~poromech.coupling.fixed_point.NOISE_LIMIT` ``|p|`` (fractures sealed by a
+          nearly impervious matrix: without fracture storage their pressure is nearly
+          undetermined); or
+        * by divergence (``DIVERGED_DTOL``: ``|p - g(p)|`` grew by
+          :data:`~poromech.coupling.fixed_point.DIVERGENCE`): ``g`` is expansive, as where a
+          step is so short that the fractures' volume change over it dominates their balance
+          (the six-fracture scene with a first step of 1e-6 s went 2.2e5 → 7.2e12 Pa at every
+          cut; with ``β_f`` it converges).
+
         ``β_f`` changes ``g``, not its fixed point (collective).
         """
         fs, fp = self.fixed_stress, self.fixed_point
@@ -461,14 +471,20 @@ class Poromechanics:
         s = fp.stats
         if not s.noise:
             fp.estimate_noise()
-        if not s.untrusted:
+        diverged = reason == PETSc.SNES.ConvergedReason.DIVERGED_DTOL and fp.failure is None
+        if not (s.untrusted or diverged):
             return False
         self._set_fracture_stabilization(t)
-        log.warning("the Darcy solve inside g is not to be trusted at t = %g s (estimated error "
-                    "%.2e, %s: fractures sealed by the matrix?); switching on the "
-                    "fracture fixed-stress term (coupling.fracture_stabilization = 1) for the "
-                    "rest of the run and solving the step again", t, s.noise[-1],
-                    s.relative_noise)
+        if s.untrusted:
+            why = (f"the Darcy solve inside g is not to be trusted at t = {t:g} s (estimated "
+                   f"error {s.noise[-1]:.2e}, {s.relative_noise}: fractures sealed by the "
+                   "matrix?)")
+        else:
+            why = (f"|p - g(p)| diverged at t = {t:g} s (g expansive: the fractures' storage "
+                   "dominates a short step?)")
+        log.warning("%s; switching on the fracture fixed-stress term "
+                    "(coupling.fracture_stabilization = 1) for the rest of the run and solving "
+                    "the step again", why)
         return True
 
     def _set_fracture_stabilization(self, t: float) -> None:
