@@ -128,6 +128,18 @@ def test_direct_solver_matches_iterative(tmp_path):
         it["boundary_fluxes"]["right"]["matrix"], rel=1e-7)
 
 
+def test_a_krylov_method_other_than_cg_measures_its_own_norm(tmp_path):
+    """``flow.petsc.ksp_type: gmres`` (or bicg, bcgs) stopped at PETSc's set-up with "KSP gmres
+    does not support norm type NATURAL", the default of CG: another method now measures its
+    own default norm, and gives CG's fluxes."""
+    it = run(flow_scene(), tmp_path / "cg")["flow"]["conservation"]
+    for ksp_type in ("gmres", "bcgs"):
+        other = run(flow_scene(petsc={"ksp_type": ksp_type}), tmp_path / ksp_type)["flow"]
+        assert other["solver"]["ksp_type"] == ksp_type
+        assert other["conservation"]["boundary_fluxes"]["right"]["matrix"] == pytest.approx(
+            it["boundary_fluxes"]["right"]["matrix"], rel=1e-6)
+
+
 BAD = [
     ({"permeability": [1.0, 2.0, 1.0]}, "flow.permeability' = [1.0, 2.0, 1.0]"),
     ({"permeability": [1.0, 2.0, 3.0, 4.0]}, "has 4 entries"),

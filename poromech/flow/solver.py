@@ -47,6 +47,9 @@ ITERATIVE_OPTIONS: dict[str, object] = {
     "mg_levels_pc_type": "jacobi",
 }
 
+#: Krylov methods that measure the natural norm ``√(rᵀBr)`` (the CG family).
+NATURAL_NORM_TYPES = ("cg", "pipecg", "groppcg", "pipecgrr")
+
 #: The changes of :data:`ITERATIVE_OPTIONS` in 3D: aggressive coarsening (the strength graph
 #: squared) on the first two levels instead of the first only. On tetrahedral meshes one level
 #: coarsens by about 10 and leaves dense middle levels (200-700 nonzeros per row) whose Galerkin
@@ -207,6 +210,13 @@ class LinearSolver:
         self._options = PrefixedOptions(prefix, merged_options(kind, options, dim))
         with self._options:
             self.ksp.setFromOptions()
+        given_norm = (options or {}).get("ksp_norm_type") is not None \
+            or PETSc.Options().hasName(f"{prefix}ksp_norm_type")
+        if kind == "iterative" and self.ksp.getType() not in NATURAL_NORM_TYPES \
+                and not given_norm:
+            # the default natural norm is CG's: another Krylov method (-flow_ksp_type gmres)
+            # measures its own default norm instead of stopping at PETSc's set-up error
+            self.ksp.setNormType(PETSc.KSP.NormType.DEFAULT)
         self.A.setOptionsPrefix(f"{prefix}A_")
         self.ksp.setConvergenceHistory(length=self.ksp.getTolerances()[3] + 1, reset=True)
         self.test = InitialResidualTest()
