@@ -197,3 +197,15 @@ def test_killed_run_is_readable(tmp_path):
     assert res.summary["status"] == "running"
     assert len(res.times("displacement")) >= 3
     check_vtk_reads(out)
+
+
+@pytest.mark.parametrize("backend", ["pyvista", "matplotlib"])
+def test_plot_of_a_3d_flow_run_draws_the_fracture_pressure(tmp_path, backend):
+    """A 3D flow run (tetrahedra): the pressure picture assumed triangles and stopped with a
+    ValueError; it now draws ``p_f`` on the fracture triangles."""
+    out = tmp_path / "berre"
+    assert run_scene(load_scene(ROOT / "configs" / "berre_case1.yaml"), out)["status"] \
+        == "converged"
+    written = plot_run(out, backend=backend)
+    assert [p.name for p in written] == ["pressure_t0.png"]
+    assert 5_000 < written[0].stat().st_size < 300_000

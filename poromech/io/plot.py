@@ -326,6 +326,15 @@ def opening_picture(fractures: Series, step: int, name: str = "") -> Faces3D:
     return Faces3D(fractures.points, fractures.cells, opening, "opening (mm)", title.strip())
 
 
+def fracture_pressure_picture(fractures: Series, step: int, name: str = "") -> Faces3D:
+    """The fracture faces of a 3D run coloured by their fluid pressure ``p_f``."""
+    p_f = fractures.fields(step)["p_f"]
+    unit, factor = _pressure_unit(p_f)
+    title = f"{name}  t = {fractures.times[step]:g} s: fracture pressure p_f per face"
+    return Faces3D(fractures.points, fractures.cells, p_f / factor, f"p_f ({unit})",
+                   title.strip(), cmap="plasma")
+
+
 #: Direction the 3D pictures are seen from (z up).
 VIEW_3D = (0.35, -0.75, 1.0)
 
@@ -679,8 +688,16 @@ def plot_run(outdir: str | Path, time: float | None = None, scale: float | None 
         fk = _step(frac, flow.times[k]) if frac is not None else -1
         if frac is not None and "p_f" not in frac.fields(fk):
             frac = None
-        pic = pressure_picture(flow, k, frac, fk, name)
-        written.append(draw(pic, out / f"pressure_{_tag(flow.times[k])}.png", backend))
+        if flow.cells.shape[1] == 4:  # tetrahedra: the fracture pressure on the fractures
+            if frac is not None:
+                pic3 = fracture_pressure_picture(frac, fk, name)
+                written.append(draw_3d(pic3, out / f"pressure_{_tag(flow.times[k])}.png",
+                                       backend))
+            else:
+                log.info("the 3D matrix pressure is not drawn: open flow.xdmf in ParaView")
+        else:
+            pic = pressure_picture(flow, k, frac, fk, name)
+            written.append(draw(pic, out / f"pressure_{_tag(flow.times[k])}.png", backend))
     if not written:
         raise PlotError(f"{res.path}: no displacement or flow series to draw")
     return written
