@@ -130,3 +130,17 @@ def test_disk_full_is_one_line_and_keeps_completed_steps(tmp_path):
     assert summary["status"].startswith("error: OutputError")
     assert check_readable(out) >= summary["completed_steps"] >= 1
     assert not list(out.rglob(".*.part"))
+
+
+def test_a_run_that_fails_before_its_first_output_step_writes_no_empty_index(tmp_path):
+    """A temporal XDMF collection with no grid made VTK's XDMF reader (ParaView's "XDMF
+    Reader") report an error and crash; a run that stops before its first output step now
+    writes no index at all, and the first completed step writes it."""
+    from poromech.cli import main
+
+    out = tmp_path / "failed"
+    assert main(["run", str(ROOT / "configs" / "six_fractures_mechanics.yaml"), "-q", "-o",
+                 str(out), "--set", "solver.petsc.snes_max_it=1", "--set",
+                 "time.max_cuts=0"]) == 3
+    assert list(out.glob("*.h5")) and not list(out.glob("*.xdmf"))
+    assert json.loads((out / "summary.json").read_text())["status"].startswith("failed")

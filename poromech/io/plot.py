@@ -699,5 +699,6 @@ def plot_run(outdir: str | Path, time: float | None = None, scale: float | None 
             pic = pressure_picture(flow, k, frac, fk, name)
             written.append(draw(pic, out / f"pressure_{_tag(flow.times[k])}.png", backend))
     if not written:
-        raise PlotError(f"{res.path}: no displacement or flow series to draw")
+        raise PlotError(f"{res.path}: no displacement or flow series to draw (a run writes them "
+                        "from its first completed output step)")
     return written

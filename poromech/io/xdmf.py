@@ -188,7 +188,15 @@ class XDMFSeries:
 
     # -- index ------------------------------------------------------------------------------
     def _write_index(self) -> None:
-        """Rewrite ``<stem>.xdmf`` atomically from :attr:`entries` (rank 0)."""
+        """Rewrite ``<stem>.xdmf`` atomically from :attr:`entries` (rank 0).
+
+        Without entries there is no index: a temporal collection with no grid made VTK's XDMF
+        reader (ParaView's "XDMF Reader") fail and crash on a run that stopped before its first
+        output step.
+        """
+        if not self.entries:
+            (self.outdir / f"{self.stem}.xdmf").unlink(missing_ok=True)
+            return
         root = ET.Element("Xdmf", Version="3.0")
         domain = ET.SubElement(root, "Domain")
         series = ET.SubElement(domain, "Grid", Name=self.name, GridType="Collection",
