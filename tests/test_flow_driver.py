@@ -140,6 +140,18 @@ def test_a_krylov_method_other_than_cg_measures_its_own_norm(tmp_path):
             it["boundary_fluxes"]["right"]["matrix"], rel=1e-6)
 
 
+def test_a_where_that_selects_no_face_is_refused(tmp_path):
+    """A ``where`` narrower than the boundary faces (tested at their midpoints) selected nothing:
+    the inflow was dropped without a word (a pressure left the system singular). Refused after
+    meshing, naming the condition; a ``where`` that selects faces runs."""
+    bcs = [{"boundary": "left", "flux": -1.0e-6, "where": "y > 0.9999"},
+           {"boundary": "right", "pressure": 0.0}]
+    with pytest.raises(ConfigError, match=r"'flow.boundary_conditions.0' \(boundary left"):
+        run(flow_scene(boundary_conditions=bcs), tmp_path / "none")
+    bcs[0]["where"] = "y > 0.5"
+    assert run(flow_scene(boundary_conditions=bcs), tmp_path / "half")["status"] == "converged"
+
+
 BAD = [
     ({"permeability": [1.0, 2.0, 1.0]}, "flow.permeability' = [1.0, 2.0, 1.0]"),
     ({"permeability": [1.0, 2.0, 3.0, 4.0]}, "has 4 entries"),

@@ -24,6 +24,7 @@ import numpy.typing as npt
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from poromech.errors import ConfigError
 from poromech.flow import hfv
 from poromech.flow.boundary import FlowBoundary, boundary_dofs
 from poromech.flow.dofs import FlowDofs, number_dofs
@@ -203,6 +204,7 @@ class DarcyProblem:
         self.crossings = FractureCrossings(self.comm, self.dofs, fm.fractures.fracture)
         self.boundary = tuple(boundary)
         self.bdofs = boundary_dofs(self.dofs, self.geom, fm.geometry, self.boundary, node_length)
+        self._check_conditions_act()
         self.source, self.fracture_source = source, fracture_source
         self.beta = float(np.sqrt(float(self.dim))) if beta is None else float(beta)
         self.pattern = SystemPattern(self.dofs, self.bdofs.mask)
@@ -223,6 +225,24 @@ class DarcyProblem:
         self.set_properties(properties)
 
     # -- coefficients (values only) ---------------------------------------------------------
+    def _check_conditions_act(self) -> None:
+        """Refuse a ``where`` condition that selects no boundary face or fracture end (collective).
+
+        ``where`` is evaluated at face midpoints and nodes of the mesh: a predicate narrower than
+        the boundary faces selected nothing, and the condition was dropped without a word (a
+        flux: no inflow at all; a pressure: a singular system).
+        """
+        b, n = self.bdofs, len(self.boundary)
+        local = sum(np.bincount(np.asarray(c, dtype=np.int64), minlength=n)[:n]
+                    for c in (b.dirichlet[1], b.flux_faces[1], b.flux_nodes[1]))
+        counts = self.comm.allreduce(np.asarray(local), op=MPI.SUM)
+        for i, bc in enumerate(self.boundary):
+            if bc.where is not None and counts[i] == 0:
+                raise ConfigError(
+                    f"'flow.boundary_conditions.{i}' (boundary {bc.name}, restricted by where) "
+                    "selects no boundary face or fracture end of the mesh (where is tested at "
+                    "face midpoints and nodes): widen where, or refine the mesh there")
+
     def set_properties(self, properties: FlowProperties) -> None:
         """Replace all coefficients (collective); matrix values are recomputed at the next solve."""
         self.properties = properties
