@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import re
 import sys
 import time
@@ -110,10 +111,10 @@ def _parser() -> argparse.ArgumentParser:
     plot = sub.add_parser("plot", help="draw PNGs of a run's outputs (deformed mesh with fracture "
                           "states, jumps along the fractures, pressure)")
     plot.add_argument("outdir", help="output directory of a run")
-    plot.add_argument("--time", type=float, help="output time to draw (the nearest written; "
+    plot.add_argument("--time", type=_finite, help="output time to draw (the nearest written; "
                       "default: the last)")
-    plot.add_argument("--scale", type=float, help="displacement magnification (default: the "
-                      "largest displacement drawn as ~10%% of the domain)")
+    plot.add_argument("--scale", type=_positive, help="displacement magnification (default: "
+                      "the largest displacement drawn as ~10%% of the domain)")
     plot.add_argument("-o", "--output", help="directory of the PNGs (default: OUTDIR/plots)")
     plot.add_argument("--backend", choices=("auto", "pyvista", "matplotlib"), default="auto",
                       help="auto: pyvista (off-screen VTK) when it can render, else matplotlib")
@@ -367,6 +368,25 @@ def _end(comm, code: int, line: str, err: BaseException | None = None) -> int:
     time.sleep(ABORT_DRAIN)
     comm.Abort(code)
     return code  # pragma: no cover
+
+
+def _finite(text: str) -> float:
+    """A finite number (argparse type)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
+    return value
+
+
+def _positive(text: str) -> float:
+    """A finite number > 0 (argparse type)."""
+    value = _finite(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"{text!r} is not > 0")
+    return value
 
 
 def _petsc_error(err: BaseException) -> str | None:

@@ -209,3 +209,14 @@ def test_plot_of_a_3d_flow_run_draws_the_fracture_pressure(tmp_path, backend):
     written = plot_run(out, backend=backend)
     assert [p.name for p in written] == ["pressure_t0.png"]
     assert 5_000 < written[0].stat().st_size < 300_000
+
+
+def test_plot_refuses_a_time_or_scale_that_is_not_a_finite_number(capsys):
+    """``--time inf`` drew the first output time (the nearest to inf by argmin), ``--scale nan``
+    a blank picture, ``--scale 0`` or ``-1`` were accepted: refused with exit 2."""
+    from poromech.cli import main
+
+    for args in (["--time", "inf"], ["--time", "nan"], ["--time", "abc"], ["--scale", "0"],
+                 ["--scale", "-1"], ["--scale", "nan"]):
+        assert main(["plot", "nowhere", *args]) == 2, args
+        assert "is not" in capsys.readouterr().err
