@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from poromech.errors import ConfigError
 from poromech.geometry.plane import PlaneGeometry, arc_length_positions
 
 __all__ = ["CELLS_PER_AREA", "MeshArrays", "MeshSizes", "SizeZone", "generate_mesh", "gmsh_session",
@@ -276,9 +277,36 @@ def generate_mesh(geo: PlaneGeometry, sizes: MeshSizes) -> MeshArrays:
     ff = np.concatenate(ffacets) if ffacets else empty2
     fid = np.concatenate(fid) if fid else np.empty(0, dtype=np.int32)
     fseg = np.concatenate(fseg) if fseg else np.empty(0, dtype=np.int32)
+    _check_fracture_faces(geo, ff, fid)
     bf = np.concatenate(bfacets) if bfacets else empty2
     be = np.concatenate(bedge) if bedge else np.empty(0, dtype=np.int32)
     return mesh_arrays(geo, x, cells, (ff, fid, fseg), (bf, be))
+
+
+def _check_fracture_faces(geo: PlaneGeometry, facets: npt.NDArray[np.int64],
+                          fracture: npt.NDArray[np.int32]) -> None:
+    """Every fracture has mesh faces, and no face belongs to two fractures.
+
+    gmsh merges curves closer than its tolerance: two fractures crossing at a tiny angle
+    (1e-7 rad) shared their faces, and one of them vanished from the results without a word.
+
+    Raises:
+        ConfigError: Naming the fractures.
+    """
+    names = geo.fracture_names
+    key = np.sort(facets, axis=1)
+    _, first, counts = np.unique(key, axis=0, return_index=True, return_counts=True)
+    for f in first[counts > 1]:
+        same = np.flatnonzero(np.all(key == key[f], axis=1))
+        owners = sorted({names[int(k)] for k in fracture[same]})
+        if len(owners) > 1:
+            raise ConfigError(
+                f"fractures {' and '.join(repr(n) for n in owners)} share mesh faces: they "
+                "meet at an angle or a distance the mesh cannot resolve (merge them, or move "
+                "them apart)")
+    for k, name in enumerate(names):
+        if not np.any(fracture == k):
+            raise ConfigError(f"fracture '{name}' has no faces in the mesh")
 
 
 def mesh_arrays(geo: PlaneGeometry, x: npt.NDArray[np.float64], cells: npt.NDArray[np.int64],
