@@ -616,3 +616,11 @@ def test_a_section_set_to_null_is_not_given():
     assert scene.physics == "mechanics" and scene.flow is None
     with pytest.raises(ConfigError, match="'flow' is not allowed"):
         load_scene(ROOT / "configs" / "injection.yaml", ["physics=mechanics"])
+
+
+def test_a_missing_section_names_the_scene_physics():
+    """A coupled scene made from a flow or mechanics scene names ``poromechanics`` as the physics
+    that needs the missing section (it said 'mechanics' or 'flow')."""
+    for name, key in (("flow_six_fractures", "material"), ("sneddon", "flow")):
+        with pytest.raises(ConfigError, match=f"'{key}' is required for physics 'poromechanics'"):
+            load_scene(ROOT / "configs" / f"{name}.yaml", ["physics=poromechanics"])

@@ -58,7 +58,8 @@ def _check_3d(scene: Scene) -> None:
 def _check_mechanics(scene: Scene, geo: PlaneGeometry) -> None:
     for key in ("geometry", "mesh", "material"):
         if getattr(scene, key) is None:
-            raise ConfigError(f"scene key '{key}' is required for physics 'mechanics'")
+            raise ConfigError(f"scene key '{key}' is required for physics "
+                              f"'{scene.physics}'")
     c = scene.contact
     if c.slip_bound is not None and not c.slip_bound.is_uniform:
         raise ConfigError(f"scene key 'contact.slip_bound' = {format_value(c.slip_bound.source)} "
@@ -173,9 +174,9 @@ def _check_flow(scene: Scene, geo: PlaneGeometry) -> None:
     """Validate a flow scene (physics ``flow``): every failure is a one-line ConfigError."""
     flow = scene.flow
     if flow is None:
-        raise ConfigError("scene key 'flow' is required for physics 'flow'")
+        raise ConfigError(f"scene key 'flow' is required for physics '{scene.physics}'")
     if scene.mesh is None:
-        raise ConfigError("scene key 'mesh' is required for physics 'flow'")
+        raise ConfigError(f"scene key 'mesh' is required for physics '{scene.physics}'")
     times = check_times(scene)
     if scene.gravity is not None and flow.fluid_density is None:
         raise ConfigError("scene key 'flow.fluid_density' is required with gravity (the weight "
