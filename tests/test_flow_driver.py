@@ -261,20 +261,3 @@ def test_fracture_storage_keeps_the_solution_it_is_centred_on():
     assert bal["max_local_residual"] < 1e-8
     volume = pb.fracture_volume(elsewhere)
     assert np.allclose(volume, d + s_f * (pb.fracture_pressure - pf_ref - 1e3), rtol=0, atol=1e-15)
-
-
-def test_a_flow_step_that_cannot_hold_the_mass_balance_fails(tmp_path, caplog):
-    """Fracture permeabilities 1e16 times the matrix's (Flemisch case 2): the solve met its
-    tolerance and was written as converged with 2.6e-3 of the flow unaccounted for (1.0 at
-    1e20: no flow at all). Such a step now fails and says why; 1e12 (5.7e-6) runs, with a
-    warning."""
-    def scene(k):
-        return load_scene(ROOT / "configs" / "flemisch_case2.yaml",
-                          [f"flow.fracture_permeability={k}",
-                           f"flow.fracture_normal_permeability={k}"])
-
-    with pytest.raises(SolverError, match="holds the mass balance only to"):
-        run_scene(scene(1e16), tmp_path / "k16", comm)
-    caplog.clear()
-    assert run_scene(scene(1e12), tmp_path / "k12", comm)["status"] == "converged"
-    assert "holds the mass balance only to" in caplog.text
