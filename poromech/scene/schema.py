@@ -599,7 +599,8 @@ class Coupling:
                      "pressure of a crack of half-length a); for fractures sealed by a nearly "
                      "impervious matrix; the fixed point is the same. null: off until a step "
                      "fails with a Darcy solve in g that is not to be trusted (estimated error "
-                     "above 1e-4 |p|), then 1 for the rest of the run", "", min=0, max=10),
+                     "above 1e-4 |p|) or by divergence (|p - g(p)| grown 1e3-fold, as in a "
+                     "very short step), then 1 for the rest of the run", "", min=0, max=10),
     )
     extrapolate: bool = field(
         default=True,
