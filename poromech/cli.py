@@ -389,8 +389,8 @@ def _positive(text: str) -> float:
     return value
 
 
-def _petsc_error(err: BaseException) -> str | None:
-    """A PETSc error as one line: the innermost routine and PETSc's messages; None otherwise.
+def _petsc_error(err: BaseException) -> str:
+    """A PETSc error as one line: the innermost routine and PETSc's messages.
 
     petsc4py's message is ``error code N`` followed by PETSc's trace, one ``[rank] routine() at
     file:line`` per frame, then the error class and the detail. A Python exception raised
@@ -402,7 +402,7 @@ def _petsc_error(err: BaseException) -> str | None:
     while isinstance(err, PETSc.Error) and isinstance(err.__cause__, BaseException):
         err = err.__cause__
     if not isinstance(err, PETSc.Error):
-        return None if err is None else f"{type(err).__name__}: {str(err).strip()}"
+        return f"{type(err).__name__}: {str(err).strip()}"
     frames, messages = [], []
     for line in str(err).strip().splitlines()[1:]:
         text = re.sub(r"^\[\d+\]\s*", "", line).strip()

@@ -174,7 +174,7 @@ class FixedPoint:
         self.stalled: int | None = None
         self._f0 = self._best = self._halved = np.nan
         self._halved_at = 0
-        self._gnorm = 0.0  # |g(p)| at the last evaluation
+        self._last_g = np.zeros(n_local)  # g(p) of the last evaluation (owned entries)
 
     def _create_snes(self, method: str, prefix: str,
                      petsc: dict) -> tuple[PETSc.SNES, PrefixedOptions]:
@@ -259,7 +259,7 @@ class FixedPoint:
             f.set(0.0)
         else:
             f.getArray()[:] = x.getArray(readonly=True) - gp
-            self._gnorm = float(np.sqrt(self.comm.allreduce(float(gp @ gp))))
+            self._last_g = gp
         x.copy(self._last_eval)
 
     def _converged(self, snes, it, norms):
@@ -314,8 +314,10 @@ class FixedPoint:
         noise = self._noise()
         self.stats.noise.append(noise)
         pnorm = self.P.norm() if pnorm is None else pnorm
-        # pressures that start at zero (an overpressure scene's first step): the scale is g(p)
-        self.stats.pnorm = pnorm if pnorm > 0.0 else self._gnorm
+        if pnorm == 0.0:  # pressures that start at zero (an overpressure scene): |g(p)|
+            g = self._last_g
+            pnorm = float(np.sqrt(self.comm.allreduce(float(g @ g))))
+        self.stats.pnorm = pnorm
         return noise
 
     def _monitor(self, snes, it, fnorm) -> None:
