@@ -401,6 +401,22 @@ def test_predictor_keeps_the_start_of_lower_merit(target, start):
     assert [c[0] for c in calls] == [1.0, 2.0, 3.0, 5.0]
 
 
+def test_predictor_does_not_extrapolate_over_a_step_far_longer_than_the_last():
+    """Listed times [1e-300, 1]: extrapolating the first step's change by 1e300 overflowed, and
+    every cut of the second step failed on a residual that was not finite. A step more than
+    ``MAX_RATIO`` times the last starts from the last unknowns, and the run converges."""
+    from poromech.mechanics.predictor import MAX_RATIO
+
+    with run_of("sneddon", "time={times: [1.0e-300, 1.0]}") as run:
+        records = run.execute()["solves"]
+        history = run.physics.predictor.history
+    assert [r["converged"] for r in records] == [True, True]
+    assert np.array_equal(history[0][1][0], history[1][1][0])  # a linear problem, one load
+    with run_of("sneddon", f"time={{times: [1.0, {1.0 + 0.5 * MAX_RATIO}]}}") as run:
+        run.execute()
+        assert run.physics.predictor.start == "extrapolated"
+
+
 @pytest.mark.slow
 def test_newton_iterations_do_not_grow_with_the_mesh():
     """Pointwise P2 Nitsche on the six-fracture ramp: at most 12 Newton iterations per step from

@@ -50,6 +50,7 @@ from poromech.io.checkpoint import scalar_row
 from poromech.mechanics.model import PressureCoupling
 from poromech.mechanics.newton import NewtonRecord
 from poromech.mechanics.physics import MechanicsPhysics
+from poromech.mechanics.predictor import MAX_RATIO
 from poromech.mesh.entities import input_cells
 from poromech.mesh.fractured import FracturedMesh
 from poromech.physics import Keyed, StepResult
@@ -348,12 +349,21 @@ class Poromechanics:
         return np.concatenate([self.flow.cell_pressure, self.flow.fracture_pressure])
 
     def _guess(self, t: float) -> Array:
-        """Initial fixed-point iterate: the last pressures, linearly extrapolated in time."""
+        """Initial fixed-point iterate: the last pressures, linearly extrapolated in time.
+
+        Not over a step longer than :data:`~poromech.mechanics.predictor.MAX_RATIO` times the
+        last one, nor where the extrapolation is not finite (a collective choice).
+        """
         (t1, p1) = self.history[-1]
         if not self.scene.coupling.extrapolate or len(self.history) < 2:
             return p1
         t0, p0 = self.history[-2]
-        return p1 + (t - t1) / (t1 - t0) * (p1 - p0)
+        r = (t - t1) / (t1 - t0)
+        if not r <= MAX_RATIO:
+            return p1
+        with np.errstate(over="ignore", invalid="ignore"):
+            p = p1 + r * (p1 - p0)
+        return p if self.comm.allreduce(bool(np.isfinite(p).all()), op=MPI.LAND) else p1
 
     def solve(self, t: float, dt: float | None) -> StepResult:
         """The fixed point of the step ending at ``t``.

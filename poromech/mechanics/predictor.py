@@ -18,6 +18,13 @@ START_NAMES = {"extrapolate": "last two steps extrapolated", "last": "last accep
                "lower_residual": "last accepted step or the last two steps extrapolated, "
                                  "whichever has the lower residual"}
 
+#: Longest step, in lengths of the last one, over which the unknowns are extrapolated. Beyond it
+#: the change of the last step says nothing about the next one, and the extrapolation can
+#: overflow: listed times ``[1e-300, 1]`` scaled the first step's change by 1e300, and every
+#: cut of the second step failed on a residual that was not finite. Steps after a cut grow by
+#: at most the factor of the cut (16 after four halvings), far below it.
+MAX_RATIO = 1.0e3
+
 
 def start_rule(choice: str, dim: int, coupled: bool, formulation: str) -> str:
     """Where each step's contact Newton starts: ``extrapolate``, ``last`` or ``lower_residual``.
@@ -72,7 +79,9 @@ class StepPredictor:
     call count as the state at ``t = 0``; unknowns that are not the last accepted ones (a
     restored checkpoint, a second call in the same step) are kept, and the history restarts.
     With a ``merit``, the extrapolation is kept only if its merit is lower than that of the
-    last accepted unknowns (:attr:`start` says which was kept).
+    last accepted unknowns (:attr:`start` says which was kept). A step longer than
+    :data:`MAX_RATIO` times the last one, or an extrapolation that is not finite, starts from
+    the last unknowns.
 
     Args:
         unknowns: The functions in block order.
@@ -111,11 +120,17 @@ class StepPredictor:
         if self.extrapolate and len(self._history) == 2 and t > self._history[1][0]:
             (t0, x0), (t1, x1) = self._history
             r = (t - t1) / (t1 - t0)
+            if not r <= MAX_RATIO:
+                return
             at_last = self.merit() if self.merit is not None else None
-            for f, a0, a1 in zip(self.unknowns, x0, x1, strict=True):
-                f.x.array[:] = a1 + r * (a1 - a0)
+            finite = True
+            with np.errstate(over="ignore", invalid="ignore"):
+                for f, a0, a1 in zip(self.unknowns, x0, x1, strict=True):
+                    f.x.array[:] = a1 + r * (a1 - a0)
+                    finite = finite and bool(np.isfinite(f.x.array).all())
             self.start = "extrapolated"
-            if at_last is not None and not self.merit() < at_last:  # (a nan keeps the last)
+            finite = self.comm.allreduce(finite, op=MPI.LAND)
+            if not finite or (at_last is not None and not self.merit() < at_last):  # nan: last
                 for f, a1 in zip(self.unknowns, x1, strict=True):
                     f.x.array[:] = a1
                 self.start = "last"
