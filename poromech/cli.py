@@ -87,12 +87,12 @@ def _parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="run a scene (default: the embedded six-fracture scene)")
     run.add_argument("scene", nargs="?", help="scene YAML file or shipped scene name")
-    run.add_argument("-o", "--output", help="output directory (default: results/<scene name>)")
+    run.add_argument("-o", "--output", type=_directory, help="output directory (default: results/<scene name>)")
     run.add_argument("--overwrite", action="store_true",
                      help="replace the outputs of an earlier run in the output directory")
     run.add_argument("--force", action="store_true",
                      help="run even if the mesh is estimated not to fit in memory")
-    run.add_argument("--restart", metavar="OUTDIR",
+    run.add_argument("--restart", metavar="OUTDIR", type=_directory,
                      help="continue the run in OUTDIR from its last completed step (its scene "
                           "is read from OUTDIR/poromech_scene.yaml; no scene or --set)")
     val = sub.add_parser("validate", help="check a scene (file or shipped name) and exit")
@@ -115,7 +115,7 @@ def _parser() -> argparse.ArgumentParser:
                       "default: the last)")
     plot.add_argument("--scale", type=_positive, help="displacement magnification (default: "
                       "the largest displacement drawn as ~10%% of the domain)")
-    plot.add_argument("-o", "--output", help="directory of the PNGs (default: OUTDIR/plots)")
+    plot.add_argument("-o", "--output", type=_directory, help="directory of the PNGs (default: OUTDIR/plots)")
     plot.add_argument("--backend", choices=("auto", "pyvista", "matplotlib"), default="auto",
                       help="auto: pyvista (off-screen VTK) when it can render, else matplotlib")
     plot.add_argument("-v", "--verbose", action="store_true", help="debug output")
@@ -379,6 +379,13 @@ def _finite(text: str) -> float:
     if not math.isfinite(value):
         raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
     return value
+
+
+def _directory(text: str) -> str:
+    """A directory path that is not empty or blank (argparse type)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError(f"{text!r} is not a directory path")
+    return text
 
 
 def _positive(text: str) -> float:

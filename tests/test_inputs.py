@@ -245,6 +245,10 @@ def test_output_directory_paths(tmp_path, capsys):
     refused(capsys, "run", "sneddon", "-o", afile / "sub", fragments=["lies below the file"])
     refused(capsys, "run", "sneddon", "-o", "/proc/poromech_out", fragments=["cannot be created"])
     refused(capsys, "run", "sneddon", "-o", "/proc", fragments=["is not writable"])
+    # an empty path was taken as the default results/<scene name>
+    for option in ("-o", "--restart"):
+        refused(capsys, "run", "sneddon", option, " ", fragments=["' ' is not a directory path"])
+    refused(capsys, "plot", tmp_path, "-o", "", fragments=["'' is not a directory path"])
     for name in ("../x", "/abs", "", "."):
         scene = write_scene(tmp_path / "s.yaml", {**mechanics_scene(), "name": name})
         refused(capsys, "run", scene, fragments=["'name'", repr(name)])
