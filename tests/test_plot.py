@@ -220,3 +220,24 @@ def test_plot_refuses_a_time_or_scale_that_is_not_a_finite_number(capsys):
                  ["--scale", "-1"], ["--scale", "nan"]):
         assert main(["plot", "nowhere", *args]) == 2, args
         assert "is not" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("backend", backends())
+def test_plot_of_a_run_without_fractures_draws_the_deformed_mesh(tmp_path, backend):
+    """A mechanics scene without fractures wrote its displacement, but ``poromech plot`` said
+    there was nothing to draw: it now draws the deformed mesh (no fracture lines, no legend)."""
+    from PIL import Image
+
+    from poromech.scene.loading import scene_from_dict
+
+    raw = {"name": "block", "physics": "mechanics",
+           "geometry": {"domain": {"rectangle": [0.0, 0.0, 1.0, 1.0]}}, "mesh": {"size": 0.2},
+           "degree": 2, "material": {"young": 1.0e10, "poisson": 0.25},
+           "boundary_conditions": [{"boundary": "bottom", "displacement": [0.0, 0.0]},
+                                   {"boundary": "top", "displacement": [0.001, -0.001]}]}
+    out = tmp_path / "block"
+    assert run_scene(scene_from_dict(raw), out)["status"] == "converged"
+    written = plot_run(out, backend=backend)
+    assert [p.name for p in written] == ["deformed_t0.png"]
+    with Image.open(written[0]) as im:
+        assert len(im.convert("RGB").getcolors(maxcolors=1 << 20)) > 20

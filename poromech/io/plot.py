@@ -243,25 +243,29 @@ class Picture:
     legend: list[tuple[str, tuple[float, float, float]]] = field(default_factory=list)
 
 
-def deformed_picture(disp: Series, fractures: Series, step: int, fstep: int,
+def deformed_picture(disp: Series, fractures: Series | None, step: int, fstep: int,
                      scale: float | None = None, name: str = "") -> Picture:
     """The deformed mesh coloured by ``|u|``, its fracture faces on both sides by state.
 
     Args:
         disp: The ``displacement`` series.
-        fractures: The ``fractures`` series (segment cells with ``state``).
+        fractures: The ``fractures`` series (segment cells with ``state``); None for a scene
+            without fractures (the deformed mesh alone).
         step: Output step of ``disp``; ``fstep`` the one of ``fractures``.
         fstep: Output step of ``fractures``.
         scale: Displacement magnification (None: :func:`nice_scale`).
         name: Scene name for the title.
     """
     u = disp.fields(step)["u"][:, :2]
-    state = np.rint(fractures.fields(fstep)["state"]).astype(int)
     scale = nice_scale(disp.points, u) if scale is None else scale
     x = disp.points[:, :2] + scale * u
-    sides = fracture_edges(disp.points, disp.cells, fractures.points)
     surface = Surface(x, disp.cells, 1e3 * np.linalg.norm(u, axis=1), "displacement magnitude (mm)")
     grid = Lines(x[mesh_edges(disp.cells)], 0.4, rgb=np.zeros((1, 3)), alpha=0.3)
+    if fractures is None:
+        title = f"{name}  t = {disp.times[step]:g} s: displacement ×{scale:g}"
+        return Picture(title.strip(), surface, [grid])
+    state = np.rint(fractures.fields(fstep)["state"]).astype(int)
+    sides = fracture_edges(disp.points, disp.cells, fractures.points)
     cracks = Lines(x[sides.nodes], 2.5, rgb=np.asarray(STATE_COLORS)[state[sides.face]])
     counts = np.bincount(state, minlength=3)
     legend = [(f"{w} ({n} faces)", STATE_COLORS[i]) for i, (w, n) in
@@ -669,14 +673,21 @@ def plot_run(outdir: str | Path, time: float | None = None, scale: float | None 
     if time is None and present:  # the last time every series has (a killed run may differ)
         time = min((res.times(s)[-1] for s in present if res.times(s)), default=None)
     written: list[Path] = []
-    if "displacement" in present and "fractures" in present:
-        disp, frac = res.series("displacement"), res.series("fractures")
+    if "displacement" in present:
+        disp = res.series("displacement")
+        frac = res.series("fractures") if "fractures" in present else None
         k = _step(disp, time)
-        if frac.points.shape[1] == 3:
-            pic3 = opening_picture(frac, _step(frac, disp.times[k]), name)
-            written.append(draw_3d(pic3, out / f"opening_{_tag(disp.times[k])}.png", backend))
+        if disp.cells.shape[1] != 3:  # not triangles: 3D, the opening on the fractures
+            if frac is not None:
+                pic3 = opening_picture(frac, _step(frac, disp.times[k]), name)
+                written.append(draw_3d(pic3, out / f"opening_{_tag(disp.times[k])}.png",
+                                       backend))
+            else:
+                log.info("a 3D displacement without fractures is not drawn: open "
+                         "displacement.xdmf in ParaView")
         else:
-            pic = deformed_picture(disp, frac, k, _step(frac, disp.times[k]), scale, name)
+            fk = _step(frac, disp.times[k]) if frac is not None else -1
+            pic = deformed_picture(disp, frac, k, fk, scale, name)
             written.append(draw(pic, out / f"deformed_{_tag(disp.times[k])}.png", backend))
         if (res.path / "fractures.csv").exists():
             written.append(plot_jumps(res, disp.times[k], out / f"jumps_{_tag(disp.times[k])}.png"))
@@ -699,6 +710,7 @@ def plot_run(outdir: str | Path, time: float | None = None, scale: float | None 
             pic = pressure_picture(flow, k, frac, fk, name)
             written.append(draw(pic, out / f"pressure_{_tag(flow.times[k])}.png", backend))
     if not written:
-        raise PlotError(f"{res.path}: no displacement or flow series to draw (a run writes them "
-                        "from its first completed output step)")
+        raise PlotError(f"{res.path}: nothing to draw (no displacement or flow series, which a "
+                        "run writes from its first completed output step; or 3D without "
+                        "fractures: open the .xdmf files in ParaView)")
     return written
