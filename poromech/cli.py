@@ -87,7 +87,8 @@ def _parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="run a scene (default: the embedded six-fracture scene)")
     run.add_argument("scene", nargs="?", help="scene YAML file or shipped scene name")
-    run.add_argument("-o", "--output", type=_directory, help="output directory (default: results/<scene name>)")
+    run.add_argument("-o", "--output", type=_directory,
+                     help="output directory (default: results/<scene name>)")
     run.add_argument("--overwrite", action="store_true",
                      help="replace the outputs of an earlier run in the output directory")
     run.add_argument("--force", action="store_true",
@@ -115,7 +116,8 @@ def _parser() -> argparse.ArgumentParser:
                       "default: the last)")
     plot.add_argument("--scale", type=_positive, help="displacement magnification (default: "
                       "the largest displacement drawn as ~10%% of the domain)")
-    plot.add_argument("-o", "--output", type=_directory, help="directory of the PNGs (default: OUTDIR/plots)")
+    plot.add_argument("-o", "--output", type=_directory,
+                      help="directory of the PNGs (default: OUTDIR/plots)")
     plot.add_argument("--backend", choices=("auto", "pyvista", "matplotlib"), default="auto",
                       help="auto: pyvista (off-screen VTK) when it can render, else matplotlib")
     plot.add_argument("-v", "--verbose", action="store_true", help="debug output")
