@@ -395,6 +395,22 @@ def test_every_key_is_used_refused_or_reported(physics, tmp_path, caplog):
 def test_given_keys_walks_mappings_and_lists_of_mappings():
     raw = {"a": 1, "b": {"c": [1, 2], "d": {}}, "e": [{"f": 1}, {"g": {"h": 2}}]}
     assert given_keys(raw) == ["a", "b.c", "b.d", "e.0.f", "e.1.g.h"]
+    # null is the default of every optional key: not given, at any depth (a nested null was
+    # reported as a key without effect); a list holding null is a value
+    raw = {"a": None, "b": {"c": None, "d": [0.0, None]}, "e": [{"f": None, "g": 1}]}
+    assert given_keys(raw) == ["b.d", "e.0.g"]
+
+
+def test_a_null_key_is_not_reported_as_without_effect(capsys):
+    """``--set contact.beta_t=null`` (the default) in a frictionless scene warned that the key
+    has no effect."""
+    from poromech.cli import main
+
+    assert main(["validate", "six_fractures_mechanics", "--set", "contact.friction=frictionless",
+                 "--set", "contact.beta_t=null"]) == 0
+    out = capsys.readouterr().out
+    assert "'contact.friction_coefficient' has no effect" in out  # given in the file
+    assert "'contact.beta_t' has no effect" not in out
 
 
 #: Keys given where the scene's other choices leave them without effect: each must be reported

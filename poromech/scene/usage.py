@@ -82,13 +82,14 @@ def given_keys(raw: Mapping) -> list[str]:
     """Dotted paths of the values given in a raw scene mapping (mappings and lists walked).
 
     A list of mappings gives one path per entry (``probes.0.name``); any other list is one value.
-    A top-level section given as null is not given (``--set flow=null`` takes a coupled scene's
-    flow section away for a mechanics run).
+    A key given as null is not given: null is every optional key's default (``--set flow=null``
+    takes a coupled scene's flow section away for a mechanics run, ``--set contact.beta_t=null``
+    asks for the default β_t; a required key given as null is refused by the schema).
     """
     def walk(node, prefix: str) -> Iterator[str]:
         if isinstance(node, Mapping) and node:
             for k, v in node.items():
-                if not prefix and v is None:
+                if v is None:
                     continue
                 yield from walk(v, f"{prefix}{k}.")
         elif isinstance(node, list) and node and all(isinstance(v, Mapping) for v in node):
