@@ -261,3 +261,32 @@ def test_fracture_storage_keeps_the_solution_it_is_centred_on():
     assert bal["max_local_residual"] < 1e-8
     volume = pb.fracture_volume(elsewhere)
     assert np.allclose(volume, d + s_f * (pb.fracture_pressure - pf_ref - 1e3), rtol=0, atol=1e-15)
+
+
+def test_a_flow_step_that_cannot_hold_the_mass_balance_fails(tmp_path):
+    """Fracture permeabilities 1e16 times the matrix's (Flemisch case 2): the solve met its
+    tolerance and was written as converged with 2.6e-3 of the flow unaccounted for (1.0 at
+    1e20). Such a step now fails and says why; 1e12 (5.7e-6) runs. A fluid at rest (the
+    hydrostatic column of tests/test_initial_stress.py) is measured against the round-off of
+    its matrix fluxes: its residual of 6e-20 m²/s was 1.7e-2 of its boundary "flux"."""
+    from test_initial_stress import hydrostatic
+
+    from poromech.flow.physics import MASS_BALANCE_FAIL
+
+    def scene(k):
+        return load_scene(ROOT / "configs" / "flemisch_case2.yaml",
+                          [f"flow.fracture_permeability={k}",
+                           f"flow.fracture_normal_permeability={k}"])
+
+    with pytest.raises(SolverError, match="holds the mass balance only to 2.6e-03 of the flow"):
+        run_scene(scene(1e16), tmp_path / "k16", comm)
+    summary = run_scene(scene(1e12), tmp_path / "k12", comm)
+    assert summary["status"] == "converged"
+    assert 1e-7 < summary["flow"]["conservation"]["relative_residual"] < 1e-4
+    summary = run_scene(scene_from_dict(hydrostatic()), tmp_path / "rest", comm)
+    assert summary["flow"]["conservation"]["relative_residual"] < 1e-2 * MASS_BALANCE_FAIL
+    # nor a step of 1e-15 s, whose storage rates are round-off over the step (4.6e-2 without
+    # their round-off in the scale)
+    tiny = load_scene(ROOT / "configs" / "flow_six_fractures.yaml", ["time={times: [1e-15]}"])
+    summary = run_scene(tiny, tmp_path / "tiny", comm)
+    assert summary["flow"]["conservation"]["relative_residual"] < 1e-2 * MASS_BALANCE_FAIL
