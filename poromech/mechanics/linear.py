@@ -54,6 +54,8 @@ __all__ = [
     "STALE_BUDGET",
     "STALE_MAX_CHANGES",
     "STALE_MAX_IT",
+    "SOLVE_SLOWDOWN",
+    "STALE_BACKOFF",
     "STALE_MIN_UNKNOWNS",
     "STALE_RTOL",
     "SWITCH_GAIN",
@@ -95,6 +97,21 @@ STALE_BUDGET = STALE_MAX_IT
 #: 7.9 / 4.4 at 12.5k unknowns on 1 rank, 30.6 / 28.5 at 49k on 2 ranks; 150 with them at 192k
 #: on 2 ranks, where 171 was spent with 3.3 times as many factorizations).
 STALE_MIN_UNKNOWNS = 100_000
+#: How many times more slowly a triangular solve with MUMPS' factors runs than the factorization,
+#: per flop (memory-bound substitutions against dense BLAS-3 fronts), for the priced budget of
+#: :meth:`DirectSolver.price`. Measured on the 3D fault scene's medium mesh (``mixed`` P2,
+#: 119k unknowns, 2 ranks): the factorization's 5.6e11 flops took 10.5 s, a stale GMRES
+#: iteration (4 flops per factor entry, 2.3e8 entries, and a product with the Jacobian's
+#: 1.9e7 nonzeros) 0.24 s: 581 iterations' worth of flops, 44 of time.
+SOLVE_SLOWDOWN = 14.0
+#: Priced stale GMRES after ``k`` failed attempts in a row (each followed by a factorization;
+#: an attempt that had fewer than :data:`STALE_MAX_IT` iterations of the budget left does not
+#: count) skips the next ``STALE_BACKOFF**k - 1`` opportunities: where the Jacobian moves too far
+#: between iterations for the old factors to precondition it (``mixed`` P2 on the sheared
+#: seven-fracture network: 24 of 31 attempts failed, with as few as 0-2 state changes, the
+#: slip directions having turned), the loss stays a few attempts per run; where it works (the
+#: fault scene, 4 of 42 failed) a lone failure costs little.
+STALE_BACKOFF = 4
 
 
 #: Defaults of ``solver.linear_solver: iterative`` for a symmetric positive definite Jacobian
@@ -442,6 +459,10 @@ class DirectSolver:
         prefix: Options prefix of the Newton (the stale GMRES uses ``<prefix>stale_``).
         reuse: Reuse the factorization while the Jacobian is bitwise unchanged.
         stale: Try GMRES preconditioned by the stale factorization after few state changes.
+        priced: Try it after any change, within a budget priced at each factorization
+            (:meth:`price`) instead of :data:`STALE_BUDGET`, with no smallest size (3D: the
+            friction Jacobian changes with the slip directions while no state changes, and a
+            factorization costs tens of stale iterations already at 50k unknowns).
 
     Attributes:
         stale_min_unknowns: Smallest system on which stale GMRES is tried
@@ -450,9 +471,11 @@ class DirectSolver:
             (:data:`STALE_BUDGET`).
     """
 
-    def __init__(self, ksp: PETSc.KSP, A: PETSc.Mat, prefix: str, *, reuse: bool, stale: bool):
+    def __init__(self, ksp: PETSc.KSP, A: PETSc.Mat, prefix: str, *, reuse: bool, stale: bool,
+                 priced: bool = False):
         self.ksp, self.A, self.comm = ksp, A, A.getComm().tompi4py()
         self.reuse = reuse
+        self.priced = priced
         self.stale_min_unknowns = STALE_MIN_UNKNOWNS
         self.stale_budget = STALE_BUDGET
         self.near_nullspace_size = 0
@@ -461,6 +484,8 @@ class DirectSolver:
         self._jacobian_states = None  # contact states of the assembled Jacobian
         self._factor_states = None  # contact states of the factorized Jacobian
         self._stale_spent = 0  # stale GMRES iterations since the last factorization
+        self._stale_misses = 0  # priced: failed stale attempts in a row
+        self._stale_skip = 0  # priced: stale opportunities still to skip after a miss
         self._stale_ksp = self._create_stale_ksp(prefix) if stale else None
 
     def _create_stale_ksp(self, prefix: str) -> PETSc.KSP:
@@ -505,6 +530,26 @@ class DirectSolver:
         self._values = self.A.getValuesCSR()[2].copy() if self.reuse else None
         self._factor_states = self._jacobian_states
         self._assembled = False
+        if self.priced and self._stale_ksp is not None:
+            self.stale_budget = self.price()
+
+    def price(self) -> int:
+        """Stale GMRES iterations worth the factorization just computed (collective).
+
+        Its flops (MUMPS' RINFOG(3)) over an iteration's (4 per factor entry, INFOG(29), for
+        the two substitutions and 2 per nonzero of the Jacobian), divided by
+        :data:`SOLVE_SLOWDOWN`. From counts, not timings, so a run repeats its choices.
+        :data:`STALE_BUDGET` for another factorization package.
+        """
+        pc = self.ksp.getPC()
+        if pc.getFactorSolverType() != "mumps":
+            return STALE_BUDGET
+        F = pc.getFactorMatrix()
+        entries = F.getMumpsInfog(29)
+        entries = float(entries) if entries >= 0 else -1e6 * entries  # < 0: millions
+        nnz = self.A.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"]
+        work = SOLVE_SLOWDOWN * (4.0 * entries + 2.0 * nnz)
+        return int(F.getMumpsRinfog(3) / work) if work > 0 else STALE_BUDGET
 
     def changes_since_factorization(self, states: npt.NDArray | None) -> int | None:
         """Contact points whose state differs from that of the factorized Jacobian (collective).
@@ -531,19 +576,30 @@ class DirectSolver:
             return ksp.getConvergedReason() > 0
         few = False
         if (self._stale_ksp is not None and has_factor and is_direct(ksp)
-                and self.A.getSize()[0] >= self.stale_min_unknowns
+                and (self.priced or self.A.getSize()[0] >= self.stale_min_unknowns)
                 and self._stale_spent < self.stale_budget):
-            changes = self.changes_since_factorization(states)
-            few = changes is not None and changes <= STALE_MAX_CHANGES
+            if self.priced:  # whatever the states did: the budget bounds the loss
+                few = self._stale_skip == 0
+                self._stale_skip = max(0, self._stale_skip - 1)
+            else:
+                changes = self.changes_since_factorization(states)
+                few = changes is not None and changes <= STALE_MAX_CHANGES
         if few:
             ksp.getPC().setReusePreconditioner(True)  # keep the old factors when applied
             stale = self._stale_ksp
+            available = self.stale_budget - self._stale_spent
+            if self.priced:  # the rest of the budget, at most: rent or buy
+                stale.setTolerances(max_it=available)
             stale.solve(F, Y)
             self._stale_spent += stale.getIterationNumber()
             record.linear_iterations += stale.getIterationNumber()
             if stale.getConvergedReason() > 0:
                 record.stale_solves += 1
+                self._stale_misses = 0
                 return True
+            if available >= min(STALE_MAX_IT, self.stale_budget):  # not just the budget's end
+                self._stale_misses += 1
+                self._stale_skip = STALE_BACKOFF**self._stale_misses - 1
         ksp.setOperators(self.A, self.A)
         ksp.getPC().setReusePreconditioner(False)
         t0 = time.perf_counter()
@@ -1033,7 +1089,7 @@ def linear_strategy(ksp: PETSc.KSP, A: PETSc.Mat, prefix: str, *, reuse: bool, s
                     modes: Callable[[], npt.NDArray[np.float64]] | None = None,
                     blocks: tuple[list[int], list[int]] | None = None,
                     coarse: Callable[[], tuple[PETSc.Mat, npt.NDArray[np.float64]]] | None = None,
-                    ) -> LinearStrategy:
+                    priced: bool = False) -> LinearStrategy:
     """The strategy for the KSP as its options configured it (call with the options pushed).
 
     Args:
@@ -1042,6 +1098,7 @@ def linear_strategy(ksp: PETSc.KSP, A: PETSc.Mat, prefix: str, *, reuse: bool, s
         prefix: Options prefix of the Newton.
         reuse: Reuse a factorization or preconditioner while the Jacobian is unchanged.
         stale: Try stale-factorization GMRES (direct).
+        priced: Its budget priced from each factorization (:class:`DirectSolver`).
         modes: Computes the rigid-body modes of the displacements; called for a Krylov KSP
             only, whose preconditioner may use them (GAMG).
         blocks: For a Jacobian with face unknowns: the owned entries of each block (``u``
@@ -1052,7 +1109,7 @@ def linear_strategy(ksp: PETSc.KSP, A: PETSc.Mat, prefix: str, *, reuse: bool, s
             (:class:`~poromech.mechanics.multigrid.PMultigrid`).
     """
     if is_direct(ksp):
-        return DirectSolver(ksp, A, prefix, reuse=reuse, stale=stale)
+        return DirectSolver(ksp, A, prefix, reuse=reuse, stale=stale, priced=priced)
     # the level smoother is chosen by the solver unless the options name one
     choose = not PETSc.Options().hasName(f"{prefix}mg_levels_pc_type")
     multigrid = None

@@ -204,6 +204,9 @@ class SemiSmoothNewton:
         stale_factorization: When at most a few contact points changed state since the last
             factorization, first try GMRES preconditioned by that (stale) factorization
             (:class:`~poromech.mechanics.linear.DirectSolver`, prefix ``<prefix>stale_``).
+        stale_priced: Stale GMRES is tried whatever the contact states did, within a budget of
+            iterations priced from the factorization's flops
+            (:meth:`~poromech.mechanics.linear.DirectSolver.price`); 3D.
         states: Callable returning the active-set codes of the owned contact points at the
             current unknowns, or None: the record's ``active_set_changes`` counts the codes that
             change from one iterate to the next. Pass
@@ -265,6 +268,7 @@ class SemiSmoothNewton:
         line_search: str = "contact",
         reuse_jacobian: bool = True,
         stale_factorization: bool = True,
+        stale_priced: bool = False,
         states: Callable[[], np.ndarray] | None = None,
         states_determine_jacobian: bool = False,
         constant_jacobian: bool = False,
@@ -312,6 +316,7 @@ class SemiSmoothNewton:
         self._eliminate_faces = eliminate_faces
         self.inexact = inexact
         self.exact_dirichlet = exact_dirichlet
+        self.stale_priced = stale_priced
         self.snes, self.ksp, self.linear = self._create_snes(prefix, options or {},
                                                              stale_factorization, modes, coarse)
         if inexact and reuse_jacobian and hasattr(self.linear, "lagged"):
@@ -360,7 +365,7 @@ class SemiSmoothNewton:
                 ksp.setFromOptions()
             linear = linear_strategy(ksp, self.A, prefix, reuse=self.reuse_jacobian,
                                      stale=stale, modes=modes, blocks=self._face_blocks(),
-                                     coarse=coarse)
+                                     coarse=coarse, priced=self.stale_priced)
         if python:
             snes.setPythonContext(_NewtonStep(self))
         else:

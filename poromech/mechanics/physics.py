@@ -191,6 +191,8 @@ class MechanicsPhysics:
                 reuse_jacobian=scene.solver.reuse_jacobian,
                 # a stale factorization of a singular Jacobian is no preconditioner
                 stale_factorization=scene.solver.stale_factorization and not singular,
+                # 2D keeps the counted budget its scenes and reference outputs were built with
+                stale_priced=fm.msh.topology.dim == 3,
                 states=model.active_set if model.faces is not None else None,
                 states_determine_jacobian=constant and model.params.piecewise_affine,
                 constant_jacobian=constant and model.linear,
