@@ -331,3 +331,20 @@ def test_a_level_smoother_in_the_options_is_not_chosen():
         run.execute()
         assert run.physics.solver.linear.smoother is None
         assert level_smoothers(run.physics) == {"sor"}
+
+
+@pytest.mark.parametrize(("formulation", "degree", "said"), [("mixed", 2, True),
+                                                             ("stabilized_mixed", 2, False),
+                                                             ("mixed", 1, False)])
+def test_the_log_says_no_condensation_only_where_it_would_apply(formulation, degree, said,
+                                                                caplog):
+    """"The mixed contact problem is not condensed in 3D" was logged for ``stabilized_mixed`` and
+    for ``mixed`` P1 too, which are never condensed (in 2D either)."""
+    import logging
+
+    caplog.set_level(logging.INFO, logger="poromech")
+    scene = load_scene(PENNY, [*COARSE, f"contact.formulation={formulation}",
+                               f"degree={degree}"])
+    with Run(scene) as run:
+        assert run.execute()["status"] == "converged"
+    assert ("is not condensed in 3D" in caplog.text) == said

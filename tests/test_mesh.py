@@ -240,3 +240,52 @@ def test_fractures_the_mesh_cannot_tell_apart_are_refused():
         generate_mesh(geometry(1e-7), sizes)
     arrays = generate_mesh(geometry(0.4 * np.tan(np.radians(10.0))), sizes)
     assert set(np.unique(arrays.fracture_id)) == {0, 1}
+
+
+def test_a_fracture_facet_without_two_sides_fails_on_every_rank():
+    """A fracture facet with a cell on one side only (a 1e-7 m fracture at a T junction) raised
+    on the rank that held it, while the other rank waited in the next collective: the run hung
+    on 2 ranks. Every rank now raises. (Such a fracture is refused before meshing too.)"""
+    code = """
+    import json
+    import dolfinx_solver  # noqa: F401
+    import dolfinx
+    import numpy as np
+    from mpi4py import MPI
+    from poromech.mesh.fractured import _facet_sides
+
+    comm = MPI.COMM_WORLD
+    msh = dolfinx.mesh.create_unit_square(comm, 4, 4)
+    msh.topology.create_connectivity(1, 2)
+    msh.topology.create_connectivity(2, 1)
+    boundary = dolfinx.mesh.exterior_facet_indices(msh.topology)
+    facets = boundary[:1] if comm.rank == 1 else np.empty(0, dtype=np.int32)
+    try:
+        _facet_sides(msh, facets, np.zeros((len(facets), 2)))
+        raised = False
+    except RuntimeError as err:
+        raised = "do not have a cell on each side" in str(err)
+    everyone = comm.allreduce(raised, op=MPI.LAND)
+    if comm.rank == 0:
+        print(json.dumps({"raised": bool(everyone)}))
+    """
+    assert run_parallel(code, timeout=120)["raised"]
+
+
+def test_a_fracture_shorter_than_the_mesher_resolves_is_refused():
+    """A 1e-7 m fracture in a 1 m box passed the checks (only zero length was refused) and
+    failed in gmsh ("Could not create line") or, at a T junction, in the mesh (exit 1, a hang
+    on 2 ranks): refused before meshing, naming the fracture and the length."""
+    from poromech.errors import ConfigError
+    from poromech.scene.loading import scene_from_dict
+
+    raw = {"name": "short", "physics": "mechanics",
+           "geometry": {"domain": {"rectangle": [0.0, 0.0, 1.0, 1.0]},
+                        "fractures": [{"name": "f", "points": [[0.2, 0.3], [0.8, 0.7]]},
+                                      {"name": "tiny", "points": [[0.35, 0.4],
+                                                                  [0.3500001, 0.4]]}]},
+           "mesh": {"size": 0.1}, "material": {"young": 1.0e10, "poisson": 0.25},
+           "contact": {"formulation": "nitsche", "friction_coefficient": 0.5},
+           "boundary_conditions": [{"boundary": "bottom", "displacement": [0.0, 0.0]}]}
+    with pytest.raises(ConfigError, match="fracture 'tiny' segment 0 .* is 1e-07 m long"):
+        scene_from_dict(raw)

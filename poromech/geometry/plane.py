@@ -199,12 +199,20 @@ def segment_meets_polygon(a, b, polygon: npt.NDArray[np.float64]) -> bool:
                for i in range(n))
 
 
+#: Shortest fracture segment, relative to the domain's diameter. gmsh's geometric tolerance is
+#: 1e-8 of the model: a segment of 1e-7 of a 1 m domain failed in gmsh alone ("Could not create
+#: line") and at a T junction gave a mesh whose fracture facets lacked a side (exit 1, and a hang
+#: on 2 ranks before that check was collective); 1e-6 meshes.
+MIN_SEGMENT = 1e-6
+
+
 def check_geometry(geo: PlaneGeometry) -> None:
     """Reject geometries that cannot be meshed or are physically meaningless.
 
     Checks: polygon with >= 3 vertices, no zero-length or crossing edges; every fracture with
-    >= 2 points, no zero-length segment, no self-crossing or folding back, inside the domain,
-    not crossing the boundary and not running along it; no two fractures overlapping.
+    >= 2 points, no segment shorter than :data:`MIN_SEGMENT` of the domain, no self-crossing
+    or folding back, inside the domain, not crossing the boundary and not running along it; no
+    two fractures overlapping.
     Crossings of different fractures (X or T junctions) and fractures ending on the boundary
     are allowed.
 
@@ -233,8 +241,14 @@ def check_geometry(geo: PlaneGeometry) -> None:
             raise GeometryError(f"{label} has {len(pts)} point(s) (at least 2 needed)")
         segs = [(pts[i], pts[i + 1]) for i in range(len(pts) - 1)]
         for i, (a, b) in enumerate(segs):
-            if np.linalg.norm(b - a) <= tol:
+            length = np.linalg.norm(b - a)
+            if length <= tol:
                 raise GeometryError(f"{label} has a zero-length segment {i} at {_point(a)}")
+            if length < MIN_SEGMENT * geo.diameter:
+                raise GeometryError(
+                    f"{label} segment {i} at {_point(a)} is {length:.3g} m long, shorter than "
+                    f"the mesh generator resolves ({MIN_SEGMENT:g} of the domain size, "
+                    f"{MIN_SEGMENT * geo.diameter:.3g} m)")
         for i, j in np.argwhere(np.triu(_near(np.array(segs), np.array(segs), tol), 1)):
             rel = _segments_relation(*segs[i], *segs[j], tol)
             if j == i + 1 and rel == "touch":

@@ -253,7 +253,8 @@ class MechanicsPhysics:
         from poromech.mechanics.condensed import MAX_FACE_UNKNOWNS, CondensedContact, applicable
 
         m, scene, ksp = self.model, self.scene, self.solver.ksp
-        if scene.solver.condensation and m.lam is not None and self.fm.msh.topology.dim == 3:
+        if (scene.solver.condensation and m.lam is not None and self.fm.msh.topology.dim == 3
+                and applicable(m.params.formulation, scene.degree, scene.contact.friction)):
             log.info("the mixed contact problem is not condensed in 3D: its dense face problem "
                      "on one rank grows as the square of the fracture faces and was slower than "
                      "the regular Newton already on the penny crack (docs/mechanics3d.md)")

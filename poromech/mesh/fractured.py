@@ -199,13 +199,16 @@ def _facet_sides(msh, facets, normals):
     c2f = msh.topology.connectivity(tdim, tdim - 1)
     x = msh.geometry.x[:, :msh.geometry.dim]
     gdofs = msh.geometry.dofmaps[0]
+    counts = np.diff(f2c.offsets)[facets]
+    # collective, so that every rank raises (one rank raising alone left the others waiting)
+    bad = msh.comm.allreduce(int(np.count_nonzero(counts != 2)))
+    if bad:
+        raise RuntimeError(f"{bad} fracture facet(s) do not have a cell on each side: the mesh "
+                           "does not resolve the fractures (a fracture shorter than the "
+                           "mesh generator's tolerance?)")
     if len(facets) == 0:
         empty = np.empty((0, 2), dtype=np.int32)
         return np.empty((0, msh.geometry.dim)), empty, empty
-    counts = np.diff(f2c.offsets)[facets]
-    if np.any(counts != 2):
-        bad = facets[np.flatnonzero(counts != 2)[0]]
-        raise RuntimeError(f"fracture facet {bad} does not have 2 local cells (ghosting?)")
     pair = f2c.array[f2c.offsets[facets][:, None] + np.arange(2)]  # (n, 2)
     mid = x[dolfinx.mesh.entities_to_geometry(msh, tdim - 1, facets)].mean(axis=1)
     cent = x[gdofs[pair]].mean(axis=2)  # (n, 2, d)
