@@ -42,7 +42,7 @@ from poromech.coupling.fixed_stress import (
 from poromech.errors import SolverError
 from poromech.flow.balance import compute_fluxes, mass_balance
 from poromech.flow.output import FlowWriter
-from poromech.flow.physics import flow_report, pressure_columns
+from poromech.flow.physics import MASS_BALANCE_FAIL, flow_report, pressure_columns
 from poromech.flow.problem import TimeStep
 from poromech.flow.setup import flow_properties, problem_from_scene, time_dependent
 from poromech.flow.state import FlowState
@@ -204,6 +204,7 @@ class Poromechanics:
         # attempt clears it, and only converged attempts are accepted)
         self._failed_since_accept = False
         self.history: list[tuple[float, Array]] = []  # accepted (t, p) for extrapolation
+        self._warned_balance = False  # a step held the mass balance only to > MASS_BALANCE_FAIL
 
     # -- set-up --------------------------------------------------------------------------------
     def _moduli(self, x: Array) -> tuple[Array, Array]:
@@ -402,8 +403,18 @@ class Poromechanics:
         record["fallback_from"] = fallback_from
         self._failed_since_accept = reason <= 0
         if reason > 0:
-            record["mass_balance"] = mass_balance(self.flow, compute_fluxes(self.flow), t,
-                                                  self._step)
+            record["mass_balance"] = balance = mass_balance(self.flow, compute_fluxes(self.flow),
+                                                            t, self._step)
+            if balance["relative_residual"] > MASS_BALANCE_FAIL and not self._warned_balance:
+                self._warned_balance = True  # the records keep every step's value
+                log.warning(
+                    "the step to t = %g s holds the mass balance only to %.3g of the flow (more "
+                    "than %g; summary.json has every step's): %s", t,
+                    balance["relative_residual"], MASS_BALANCE_FAIL,
+                    "it was accepted at the noise of g (the Darcy solves' error), "
+                    "coupling.fracture_stabilization or shorter steps may do better"
+                    if record.get("converged_at_noise") else "the fixed point's tolerance "
+                    "(coupling.rtol, coupling.atol) is looser than the flow needs")
             return StepResult(True, record)
         s = fp.stats
         why = fp.failure or (f"{fp.reason_name(reason)} after "
