@@ -205,6 +205,7 @@ class Poromechanics:
         self._failed_since_accept = False
         self.history: list[tuple[float, Array]] = []  # accepted (t, p) for extrapolation
         self._warned_balance = False  # a step held the mass balance only to > MASS_BALANCE_FAIL
+        self._warned_porosity = False  # an accepted porosity was negative
 
     # -- set-up --------------------------------------------------------------------------------
     def _moduli(self, x: Array) -> tuple[Array, Array]:
@@ -517,9 +518,17 @@ class Poromechanics:
         """The step's porosity, aperture and displacement become the references."""
         self.mech.accept(t)
         pb, step = self.flow, self._step
-        self.accepted.accept(None if step is None else pb.porosity(step),
-                             (pb.properties.aperture if step is None
-                              else pb.fracture_volume(step)).copy())
+        porosity = None if step is None else pb.porosity(step)
+        self.accepted.accept(porosity, (pb.properties.aperture if step is None
+                                        else pb.fracture_volume(step)).copy())
+        if porosity is not None and not self._warned_porosity:
+            least = self.comm.allreduce(float(porosity.min(initial=np.inf)), op=MPI.MIN)
+            if least < 0:
+                self._warned_porosity = True
+                log.warning("the porosity is negative at t = %g s (%.3g; the linearized "
+                            "φ = φ⁰ + b ∇·(u - u⁰) + (p - p⁰)/M left its range): the matrix "
+                            "storage is meaningless there (flow.porosity, flow.biot_modulus?)",
+                            t, least)
         self.history = [*self.history[-1:], (t, self._pressures())]
         self.continuation.accept()
 
