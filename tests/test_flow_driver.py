@@ -103,6 +103,7 @@ def test_solver_failure_raises(tmp_path):
     assert err.value.reason == "DIVERGED_MAX_IT"
     assert len(err.value.history) == 3
     assert "did not converge" in str(err.value)
+    assert "flow.linear_solver: direct solves it" in str(err.value)  # what to do about it
     assert "flow" in failed.summary and failed.summary["status"].startswith("failed")
 
 

@@ -310,6 +310,7 @@ def test_krylov_failure_fails_the_run_with_its_reason(tmp_path):
     assert proc.returncode == 3, proc.stdout + proc.stderr
     assert "DIVERGED_LINEAR_SOLVE" in proc.stderr
     assert "(cg + gamg) did not converge: DIVERGED_MAX_IT after 2 iterations" in proc.stderr
+    assert "solver.linear_solver: direct solves it with MUMPS" in proc.stderr
     # the Krylov history, relative to the right-hand side: it starts at 1 and has not converged
     history = re.search(r"relative residual at iteration 0: ([0-9.e+-]+), 1: ([0-9.e+-]+), "
                         r"2: ([0-9.e+-]+)", proc.stderr)

@@ -316,7 +316,9 @@ class LinearSolver:
             raise SolverError(
                 f"flow linear solver ({self.ksp.getType()}/{self.ksp.getPC().getType()}) did not "
                 f"converge: {rec.reason} after {rec.iterations} iterations, residual "
-                f"{rec.residual:.3e}",
+                f"{rec.residual:.3e}"
+                + ("" if self.ksp.getType() == PETSc.KSP.Type.PREONLY else
+                   "; flow.linear_solver: direct solves it with MUMPS, memory permitting"),
                 reason=rec.reason, history=rec.history, record=rec.as_dict(),
             )
         return rec

@@ -418,6 +418,7 @@ def failure_message(ksp: PETSc.KSP, F: PETSc.Vec) -> str:
         text += (f", residual {ksp.getResidualNorm() / b:.2e} of the initial (ksp_rtol "
                  f"{ksp.getTolerances()[0]:.0e}, ksp_max_it {ksp.getTolerances()[3]})")
         text += _history(ksp, b)
+        text += "; solver.linear_solver: direct solves it with MUMPS, memory permitting"
     return text
 
 
