@@ -231,6 +231,23 @@ def test_beta_defaults_are_relative_to_the_largest_young_modulus():
     assert model.beta0 == pytest.approx((3e11, 1e11), rel=1e-12)
 
 
+def test_default_beta_far_stiffer_than_the_rock_at_a_fracture_is_reported(caplog):
+    """β⁰ defaults to multiples of the largest Young's modulus: a fracture in rock 1000 times
+    softer stalled the Newton (100 iterations), silently. Warned from a ratio of 30 on, when a
+    β⁰ is left to its default; not for a homogeneous rock nor with β⁰ given."""
+    from poromech.mechanics.model import SOFT_CONTRAST
+
+    soft = f"material.young=where(y > 1.5, 1e10, {1e10 / (1.5 * SOFT_CONTRAST)})"
+    default = ["contact.beta_n=null", "contact.beta_t=null"]
+    for sets, warned in (([soft, *default], True), (default, False), ([soft], False)):
+        caplog.clear()
+        with caplog.at_level("WARNING", logger="poromech"):
+            _, _, model = model_of("inclined_crack_slip", *sets)
+        said = [m for m in model.warnings if "times softer than the largest" in m]
+        assert len(said) == int(warned), sets
+        assert ("times softer" in caplog.text) == warned
+
+
 def test_symmetric_nitsche_warns_below_its_coercivity_bound(caplog):
     """θ = 1 with β_τ⁰ = 1.6 E (the issue's 40 GPa on E = 25 GPa) is below the bound: warned;
     θ = 1 at β⁰ = 100 E and θ = -1 at any β⁰ are not."""
