@@ -492,3 +492,17 @@ def test_newton_iterations_do_not_grow_with_the_mesh():
     for level in levels:
         iterations = [r["iterations"] for r in records_of("six_fractures_mechanics", *level)]
         assert max(iterations) <= 12, (level, iterations)
+
+
+def test_a_failure_message_quotes_the_ends_of_a_long_history():
+    """A failed Newton quoted its whole residual history on one line (100-300 values, several
+    kB); the message keeps the first and last few, and the step records keep them all."""
+    from poromech.mechanics.newton import QUOTED_RESIDUALS, quoted_history
+
+    k = QUOTED_RESIDUALS
+    short = [1.0, 0.5, 0.25]
+    assert quoted_history(short) == "1.000e+00, 5.000e-01, 2.500e-01"
+    long = [float(i) for i in range(101)]
+    text = quoted_history(long)
+    assert text.startswith("0.000e+00, 1.000e+00") and text.endswith("1.000e+02")
+    assert f"... ({101 - 2 * k} more) ..." in text and len(text.split(", ")) == 2 * k + 1

@@ -48,7 +48,7 @@ from poromech.flow.setup import flow_properties, problem_from_scene, time_depend
 from poromech.flow.state import FlowState
 from poromech.io.checkpoint import scalar_row
 from poromech.mechanics.model import PressureCoupling
-from poromech.mechanics.newton import NewtonRecord
+from poromech.mechanics.newton import NewtonRecord, quoted_history
 from poromech.mechanics.physics import MechanicsPhysics
 from poromech.mechanics.predictor import MAX_RATIO
 from poromech.mesh.entities import input_cells
@@ -272,7 +272,7 @@ class Poromechanics:
             raise EvaluationFailure(
                 f"{what} did not converge inside the fixed point: {first.reason} after "
                 f"{first.iterations} iterations{linear}; residual history "
-                + ", ".join(f"{r:.3e}" for r in first.residuals)
+                + quoted_history(first.residuals)
                 + (f"; nor by continuation from the last converged pressures ({rec.reason} after "
                    f"{rec.iterations} iterations)" if len(recs) > 1 else ""))
         self.continuation.remember(p_m, p_f)
@@ -429,7 +429,7 @@ class Poromechanics:
                 why += (" — the Darcy problem in g is nearly singular (sealed fractures?): set "
                         "coupling.fracture_stabilization to null or a factor > 0")
         message = (f"the coupled fixed point did not converge at t = {t:g} s: {why}; "
-                   "|p - g(p)| history " + ", ".join(f"{r:.3e}" for r in s.residuals))
+                   "|p - g(p)| history " + quoted_history(s.residuals))
         return StepResult(False, record, message, fp.reason_name(reason), list(s.residuals))
 
     def _attempt(self, t: float, method: str, retry: bool = True, fallback: bool = False) -> int:

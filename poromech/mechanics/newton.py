@@ -102,7 +102,8 @@ from poromech.mechanics.linear import (
 )
 from poromech.petsc_options import PrefixedOptions, reason_name
 
-__all__ = ["ConvergenceError", "NewtonRecord", "SemiSmoothNewton", "DEFAULT_OPTIONS"]
+__all__ = ["ConvergenceError", "NewtonRecord", "SemiSmoothNewton", "DEFAULT_OPTIONS",
+           "quoted_history"]
 
 log = logging.getLogger("poromech")
 
@@ -126,6 +127,20 @@ DEFAULT_OPTIONS: dict[str, object] = {
     "pc_type": "lu",
     "pc_factor_mat_solver_type": "mumps",
 }
+
+#: Residuals a failure message quotes at each end of a longer history (the whole history is in
+#: the step records of summary.json): 100-300 values made messages of several kB on one line.
+QUOTED_RESIDUALS = 4
+
+
+def quoted_history(residuals: Sequence[float]) -> str:
+    """``r0, r1, ..., rn`` as a message quotes it: the first and last few of a long history."""
+    text = [f"{r:.3e}" for r in residuals]
+    k = QUOTED_RESIDUALS
+    if len(text) > 2 * k + 1:
+        text = [*text[:k], f"... ({len(text) - 2 * k} more) ...", *text[-k:]]
+    return ", ".join(text)
+
 
 class ConvergenceError(RuntimeError):
     """A nonlinear solve that did not converge; carries its :class:`NewtonRecord`."""

@@ -33,7 +33,7 @@ from poromech.io.xdmf import XDMFSeries
 from poromech.mechanics.linear import is_direct, iterative_options, rigid_body_modes
 from poromech.mechanics.model import MechanicsModel, PressureCoupling
 from poromech.mechanics.multigrid import p1_interpolation
-from poromech.mechanics.newton import NewtonRecord, SemiSmoothNewton
+from poromech.mechanics.newton import NewtonRecord, SemiSmoothNewton, quoted_history
 from poromech.mechanics.predictor import START_NAMES, StepPredictor, start_rule
 from poromech.mesh.entities import fracture_segments
 from poromech.mesh.fractured import FracturedMesh, cracked_space
@@ -348,7 +348,7 @@ class MechanicsPhysics:
             linear = f" ({rec.linear_failure})" if rec.linear_failure else ""
             message = (f"Newton did not converge at t = {t:g} s: {rec.reason} after "
                        f"{rec.iterations} iterations{linear}; residual history "
-                       + ", ".join(f"{r:.3e}" for r in rec.residuals))
+                       + quoted_history(rec.residuals))
         return StepResult(rec.converged, record, message, rec.reason, rec.residuals)
 
     def accept(self, t: float) -> None:
