@@ -248,8 +248,8 @@ def test_priced_stale_budget_is_the_factorization_in_iterations_and_backs_off(mo
     iterations priced from MUMPS' counts of the factorization (deterministic: a run repeats its
     choices); a Jacobian far from the factorized one fails within the budget, and failures in a
     row make the tries rarer (4^k - 1 skipped). On the 3D fault scene's medium mesh (``mixed``
-    P2, 119k unknowns, 2 ranks, 8 steps) 6 factorizations instead of 11, 138 s against 269 s,
-    the same Newton iterations and fractures.csv to 4e-14 (docs/poromechanics.md)."""
+    P2, 119k unknowns, 2 ranks, 8 steps) 5 factorizations instead of 10, 104 s against 137 s,
+    the same Newton iterations and fractures.csv to 4e-14 (docs/mechanics3d.md)."""
     import poromech.mechanics.linear as linear
     from poromech.mechanics.newton import NewtonRecord
 
