@@ -397,25 +397,39 @@ def test_iterative_on_a_piece_held_only_by_contact(formulation):
     assert _relative(u["iterative"], u["direct"]) < 1e-6
 
 
-def test_a_piece_held_only_by_frictionless_contact_is_warned_of_its_slide(caplog):
+def test_a_piece_held_only_by_frictionless_contact_on_parallel_cuts_is_refused(caplog):
     """The top piece of the cut box on frictionless contact: nothing determines its slide along
     the cut, and the run wrote an arbitrary one (3 µm to 3.6 mm with the same loads, different
-    on 2 ranks). The warning now says so; with friction it says only that contact holds it."""
+    on 2 ranks). Refused before solving, naming the free motions; with friction it runs (only
+    contact holds it). The free motions of pieces cut out of a 2D mesh."""
+    from poromech.errors import ConfigError
     from poromech.mechanics.physics import check_pieces
+    from poromech.mesh.cracking import unblocked_motions
     from poromech.run import build_mesh
 
-    for friction, said in (("frictionless", True), ("coulomb", False)):
+    for friction in ("frictionless", "coulomb"):
         raw = copy.deepcopy(CUT)
         raw.pop("fracture_pressure")
         raw["contact"] = {"formulation": "nitsche", "friction": friction,
                           "friction_coefficient": 0.5}
         raw["boundary_conditions"][1] = {"boundary": "top", "traction": [1.0e5, 0.0, -1.0e6]}
         scene = scene_from_dict(raw)
+        fm = build_mesh(scene, MPI.COMM_WORLD)
+        # the cut is a plane: two slides and the turn about its normal are free
+        assert fm.unblocked == (3, 3)
         caplog.clear()
         with caplog.at_level("WARNING", logger="poromech"):
-            check_pieces(scene, build_mesh(scene, MPI.COMM_WORLD))
-        assert "only" in caplog.text and "contact holds it" in caplog.text
-        assert ("its slide is then not determined" in caplog.text) == said
+            if friction == "frictionless":
+                with pytest.raises(ConfigError, match="leaves 3 of its rigid motions free"):
+                    check_pieces(scene, fm)
+            else:
+                check_pieces(scene, fm)
+                assert "only contact holds it" in caplog.text
+    # 2D: a wedge cut out on two sides at an angle is held (no motion keeps the normal gaps at
+    # the faces' ends); a piece with one straight cut face keeps the slide along it
+    x = np.array([[0.0, 0.0], [2.0, 0.0], [1.0, 1.0], [0.0, 1.0], [2.0, 1.0], [1.0, -1.0]])
+    cells = np.array([[0, 1, 2], [0, 2, 3], [1, 4, 2], [0, 5, 1]])
+    assert unblocked_motions(cells, x, np.array([[0, 2], [1, 2]])) == (0, 1, 1)
 
 
 def test_forcing_term_of_the_inexact_newton():

@@ -80,8 +80,11 @@ def p1_coarse(fm: FracturedMesh, V) -> tuple[PETSc.Mat, np.ndarray]:
     return p1_interpolation(V, V1), rigid_body_modes(V1)
 
 
-def floating_pieces(scene: Scene, fm: FracturedMesh) -> list[str]:
+def floating_pieces(scene: Scene, fm: FracturedMesh) -> dict[int, tuple[str, bool]]:
     """The pieces of the cracked body that no displacement condition holds, described.
+
+    Returns:
+        Per such piece (by index): its description, and whether no component of it is held.
 
     A piece (:attr:`~poromech.mesh.fractured.FracturedMesh.pieces`) is held when the
     displacement conditions on the boundaries it touches fix every component somewhere, the
@@ -91,7 +94,7 @@ def floating_pieces(scene: Scene, fm: FracturedMesh) -> list[str]:
     in its coarse space all the same.
     """
     names, d = fm.geometry.boundary_names, fm.msh.geometry.dim
-    out = []
+    out = {}
     for k, (cells, edges) in enumerate(fm.pieces):
         fixed = [False] * d
         touched = {names[e] for e in edges}
@@ -101,8 +104,8 @@ def floating_pieces(scene: Scene, fm: FracturedMesh) -> list[str]:
         if not all(fixed):
             free = "".join(c for c, f in zip("xyz", fixed, strict=False) if not f)
             where = ", ".join(sorted(touched)) or "no boundary"
-            out.append(f"piece {k + 1} of {len(fm.pieces)} ({cells} cells, on {where}) has no "
-                       f"displacement condition in {free}")
+            out[k] = (f"piece {k + 1} of {len(fm.pieces)} ({cells} cells, on {where}) has no "
+                      f"displacement condition in {free}", not any(fixed))
     return out
 
 
@@ -118,18 +121,25 @@ def check_pieces(scene: Scene, fm: FracturedMesh) -> None:
         return
     if scene.contact.formulation == "none":
         raise ConfigError(f"scene key 'boundary_conditions': the fractures cut the body into "
-                          f"{len(fm.pieces)} pieces and {floating[0]}: with contact.formulation "
-                          "none nothing holds it (rigid-body motion); add a displacement "
-                          "condition on a boundary it touches")
+                          f"{len(fm.pieces)} pieces and {next(iter(floating.values()))[0]}: "
+                          "with contact.formulation none nothing holds it (rigid-body motion); "
+                          "add a displacement condition on a boundary it touches")
     c = scene.contact
     frictionless = c.friction == "frictionless" or (c.friction == "coulomb"
                                                     and c.friction_coefficient == 0)
-    for text in floating:
-        if frictionless:  # a block on parallel frictionless fractures slid by 3 µm to 3.6 mm
+    for k, (text, unheld) in floating.items():
+        free = fm.unblocked[k] if k < len(fm.unblocked) else 0
+        if frictionless and unheld and free:  # a block on a frictionless cut slid 3 µm - 3.6 mm
+            raise ConfigError(
+                f"scene key 'contact.friction': {text} and only frictionless contact holds it, "
+                f"which leaves {free} of its rigid motions free (it can slide or turn along its "
+                "fractures): its position is not determined; hold it by a displacement "
+                "condition or give friction")
+        if frictionless:
             log.warning("%s: only frictionless contact holds it, which cannot stop it sliding "
-                        "along fractures that do not cross: its slide is then not determined, "
-                        "and the run writes an arbitrary one (different on other ranks); "
-                        "hold it by a displacement condition or give friction", text)
+                        "along its fractures where their normals leave it free (its slide is "
+                        "then not determined); hold it by a displacement condition or give "
+                        "friction", text)
         else:
             log.warning("%s: only contact holds it", text)
 

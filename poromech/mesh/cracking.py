@@ -29,6 +29,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 __all__ = [
+    "piece_labels",
+    "unblocked_motions",
     "bisect_edges",
     "body_pieces",
     "crack_vertices",
@@ -120,6 +122,78 @@ def _open_facet_pairs(cells: IntArray, fracture_facets: IntArray):
     return c1, f1, c2, f2
 
 
+def piece_labels(cells: npt.ArrayLike, fracture_facets: npt.ArrayLike) -> IntArray:
+    """The piece of every cell (:func:`body_pieces`), pieces numbered by their first cell."""
+    cells = np.asarray(cells, dtype=np.int64)
+    nc = len(cells)
+    c1, _, c2, _ = _open_facet_pairs(cells, np.asarray(fracture_facets))
+    graph = coo_matrix((np.ones(len(c1), dtype=np.int8), (c1, c2)), shape=(nc, nc))
+    npieces, label = connected_components(graph, directed=False)
+    first = np.full(npieces, nc, dtype=np.int64)
+    np.minimum.at(first, label, np.arange(nc))
+    rank = np.empty(npieces, dtype=np.int64)
+    rank[np.argsort(first)] = np.arange(npieces)
+    return rank[label]
+
+
+def unblocked_motions(cells: npt.ArrayLike, x: npt.ArrayLike,
+                      fracture_facets: npt.ArrayLike) -> tuple[int, ...]:
+    """Per piece, how many of its rigid motions its fracture faces cannot stop by contact.
+
+    A rigid motion ``r(x) = a + ω × x`` (3 in 2D, 6 in 3D) is stopped by a closed fracture
+    face only along the face normal; without friction it is undetermined when
+    ``r(x_v)·n_f = 0`` at every vertex ``x_v`` of every fracture face of the piece (a block on
+    a planar cut slides along it and turns about its normal; a wedge between two cuts at an
+    angle is held). Returns the dimension of that space per piece, in :func:`piece_labels`'
+    order.
+    """
+    cells = np.asarray(cells, dtype=np.int64)
+    x = np.asarray(x, dtype=np.float64)
+    nv, gdim = cells.shape[1], x.shape[1]
+    ndof = 3 if gdim == 2 else 6
+    label = piece_labels(cells, fracture_facets)
+    npieces = int(label.max()) + 1 if len(cells) else 0
+    frows = np.asarray(fracture_facets, dtype=np.int64).reshape(-1, nv - 1)
+    # the cells on both sides of every fracture facet
+    rows = np.sort(cells[:, facet_table(nv)], axis=2).reshape(-1, nv - 1)
+    ids, _ = unique_rows(np.concatenate([rows, np.sort(frows, axis=1)]))
+    cid, fid = ids[: len(rows)], ids[len(rows):]
+    order = np.argsort(cid, kind="stable")
+    lo = np.searchsorted(cid[order], fid, "left")
+    hi = np.searchsorted(cid[order], fid, "right")
+    counts = hi - lo
+    facet = np.repeat(np.arange(len(fid)), counts)
+    pos = np.repeat(lo, counts) + np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts,
+                                                                     counts)
+    cell = order[pos] // nv
+    pts = x[frows]  # (nf, nv - 1, gdim)
+    if gdim == 2:
+        t = pts[:, 1] - pts[:, 0]
+        normal = np.stack([-t[:, 1], t[:, 0]], axis=1)
+    else:
+        normal = np.cross(pts[:, 1] - pts[:, 0], pts[:, 2] - pts[:, 0])
+    normal /= np.linalg.norm(normal, axis=1)[:, None]
+    out = []
+    for k in range(npieces):
+        mine = facet[label[cell] == k]
+        if len(mine) == 0:
+            out.append(ndof)
+            continue
+        # the normal gap at every vertex of every face: a motion keeping them all is free
+        n = np.repeat(normal[mine], nv - 1, axis=0)
+        r = pts[mine].reshape(-1, gdim)
+        r = r - r.mean(axis=0)
+        size = max(float(np.abs(r).max()), np.finfo(float).tiny)
+        if gdim == 2:
+            moment = (r[:, 0] * n[:, 1] - r[:, 1] * n[:, 0])[:, None]
+        else:
+            moment = np.cross(r, n)
+        rows_k = np.hstack([n, moment / size])
+        sv = np.linalg.svd(rows_k, compute_uv=False)
+        out.append(ndof - int(np.count_nonzero(sv > 1e-8 * sv[0])))
+    return tuple(out)
+
+
 def body_pieces(cells: npt.ArrayLike, fracture_facets: npt.ArrayLike,
                 boundary_facets: npt.ArrayLike, boundary_edge: npt.ArrayLike
                 ) -> tuple[tuple[int, tuple[int, ...]], ...]:
@@ -141,14 +215,8 @@ def body_pieces(cells: npt.ArrayLike, fracture_facets: npt.ArrayLike,
     """
     cells = np.asarray(cells, dtype=np.int64)
     nc, nv = cells.shape
-    c1, _, c2, _ = _open_facet_pairs(cells, np.asarray(fracture_facets))
-    graph = coo_matrix((np.ones(len(c1), dtype=np.int8), (c1, c2)), shape=(nc, nc))
-    npieces, label = connected_components(graph, directed=False)
-    first = np.full(npieces, nc, dtype=np.int64)
-    np.minimum.at(first, label, np.arange(nc))
-    rank = np.empty(npieces, dtype=np.int64)
-    rank[np.argsort(first)] = np.arange(npieces)
-    label = rank[label]
+    label = piece_labels(cells, fracture_facets)
+    npieces = int(label.max()) + 1 if nc else 0
     # the cell of each boundary facet: its row among the sorted facet rows of all cells
     rows = np.sort(cells[:, facet_table(nv)], axis=2).reshape(-1, nv - 1)
     brows = np.sort(np.asarray(boundary_facets, dtype=np.int64).reshape(-1, nv - 1), axis=1)

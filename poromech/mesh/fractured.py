@@ -29,7 +29,12 @@ from mpi4py import MPI
 
 from poromech.geometry.box import BoxGeometry
 from poromech.geometry.plane import PlaneGeometry
-from poromech.mesh.cracking import body_pieces, crack_vertices, facet_table
+from poromech.mesh.cracking import (
+    body_pieces,
+    crack_vertices,
+    facet_table,
+    unblocked_motions,
+)
 from poromech.mesh.generate import MeshArrays
 from poromech.parallel import agree
 
@@ -125,6 +130,8 @@ class FracturedMesh:
         pieces: The pieces the fractures cut the body into (the same on every rank): per piece
             its number of cells and the domain edges (faces) it touches
             (:func:`~poromech.mesh.cracking.body_pieces`).
+        unblocked: Per piece, the rigid motions its fracture faces cannot stop without
+            friction (:func:`~poromech.mesh.cracking.unblocked_motions`); empty for one piece.
     """
 
     msh: dolfinx.mesh.Mesh
@@ -137,6 +144,7 @@ class FracturedMesh:
     boundary_edge: npt.NDArray[np.int32]
     num_fracture_faces: int
     pieces: tuple[tuple[int, tuple[int, ...]], ...] = ()
+    unblocked: tuple[int, ...] = ()
 
     @property
     def comm(self) -> MPI.Comm:
@@ -275,9 +283,11 @@ def create_fractured_mesh(
         shape = (arrays.cells.shape[1], arrays.x.shape[1])
         pieces = body_pieces(arrays.cells, arrays.fracture_facets, arrays.boundary_facets,
                              arrays.boundary_edge)
+        unblocked = (unblocked_motions(arrays.cells, arrays.x, arrays.fracture_facets)
+                     if len(pieces) > 1 else ())
     else:
-        cracked_rows, face_data, shape, pieces = None, None, None, None
-    pieces = comm.bcast(pieces, root=0)
+        cracked_rows, face_data, shape, pieces, unblocked = None, None, None, None, None
+    pieces, unblocked = comm.bcast((pieces, unblocked), root=0)
     fid, fseg, fs = comm.bcast(face_data, root=0)
     nv, gdim = comm.bcast(shape, root=0)  # vertices per cell, coordinates per point
     if owner is not None or comm.size > 1:
@@ -326,7 +336,7 @@ def create_fractured_mesh(
     return FracturedMesh(
         msh, geometry, cracked, cracked_cells, faces, facets_all,
         bfacets[own].astype(np.int32), bedge[own].astype(np.int32),
-        int(len(fid)), pieces,
+        int(len(fid)), pieces, unblocked,
     )
 
 
