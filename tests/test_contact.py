@@ -248,6 +248,15 @@ def test_default_beta_far_stiffer_than_the_rock_at_a_fracture_is_reported(caplog
         assert ("times softer" in caplog.text) == warned
 
 
+def test_p1_in_a_nearly_incompressible_rock_is_warned_of_locking():
+    """P1 at ν = 0.4999 gave 15 % of the slip of P2 (volumetric locking), silently: warned from
+    ν = 0.49 on; not for P2 nor at ν = 0.25."""
+    for sets, warned in ((["degree=1", "parameters.nu=0.4999"], True),
+                         (["degree=2", "parameters.nu=0.4999"], False), (["degree=1"], False)):
+        _, _, model = model_of("inclined_crack_slip", *sets)
+        assert any("P1 displacements lock" in m for m in model.warnings) == warned, sets
+
+
 def test_symmetric_nitsche_warns_below_its_coercivity_bound(caplog):
     """θ = 1 with β_τ⁰ = 1.6 E (the issue's 40 GPa on E = 25 GPa) is below the bound: warned;
     θ = 1 at β⁰ = 100 E and θ = -1 at any β⁰ are not."""

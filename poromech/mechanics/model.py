@@ -74,6 +74,9 @@ IMBALANCE_LIMIT = 1e-3
 #: in rock softer than the 1e11 Pa above it (nitsche P2, Coulomb): 11, 12, 29 Newton iterations
 #: at ratios 10, 33, 100, and no convergence at 1000.
 SOFT_CONTRAST = 30.0
+#: Poisson's ratio from which P1 displacements are warned of volumetric locking (the jump error
+#: of the inclined crack: 0.04 at ν = 0.25, 0.17 at 0.49, 0.5 at 0.499; docs/mechanics.md).
+LOCKING_POISSON = 0.49
 #: Components of an initial stress by dimension, as ``(i, j)`` in the order of the scene key.
 _STRESS_INDEX = {2: ((0, 0), (1, 1), (0, 1)),
                  3: ((0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1))}
@@ -166,6 +169,8 @@ class MechanicsModel:
         self.u = fem.Function(self.V, name="u")
         self.has_fractures = fm.num_fracture_faces > 0
         self.params = self._contact_parameters()
+        if scene.degree == 1:
+            self._check_locking()
         c = self.params
         self.submesh, self.emap = _facet_submesh(fm) if self.has_fractures else (None, None)
         self.entity_maps = [self.emap] if self.emap is not None else []
@@ -247,6 +252,17 @@ class MechanicsModel:
             quadrature_degree=cforms.quadrature_degree(self.scene.degree),
             dim=msh.topology.dim,
         )
+
+    def _check_locking(self) -> None:
+        """Warn of P1 displacements in a nearly incompressible rock (collective)."""
+        nu = _cell_values(self.fm.msh, self.scene.material.poisson)
+        largest = self.fm.msh.comm.allreduce(float(nu.max(initial=0.0)), op=MPI.MAX)
+        if largest >= LOCKING_POISSON:
+            msg = (f"degree 1 with Poisson's ratio up to {largest:g}: P1 displacements lock as ν "
+                   "→ 0.5 (jumps too small: error 0.17 at ν = 0.49 and 0.5 at 0.499, against "
+                   "0.04 at 0.25, docs/mechanics.md); use degree 2")
+            self.warnings.append(msg)
+            log.warning(msg)
 
     def _check_soft_fractures(self, young: npt.NDArray[np.float64]) -> None:
         """Warn when a default β⁰ is far stiffer than the rock at some fracture face (collective).
