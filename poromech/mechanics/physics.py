@@ -83,15 +83,15 @@ def p1_coarse(fm: FracturedMesh, V) -> tuple[PETSc.Mat, np.ndarray]:
 def floating_pieces(scene: Scene, fm: FracturedMesh) -> dict[int, tuple[str, bool]]:
     """The pieces of the cracked body that no displacement condition holds, described.
 
-    Returns:
-        Per such piece (by index): its description, and whether no component of it is held.
-
     A piece (:attr:`~poromech.mesh.fractured.FracturedMesh.pieces`) is held when the
     displacement conditions on the boundaries it touches fix every component somewhere, the
     check the scene makes for the whole body (necessary, not sufficient, against rigid motion).
     The rigid-body modes given to GAMG are global; on a cracked space the pieces do not share
     dofs, so GAMG's aggregates never straddle a fracture and every piece's own rigid motions are
     in its coarse space all the same.
+
+    Returns:
+        Per such piece (by index): its description, and whether no component of it is held.
     """
     names, d = fm.geometry.boundary_names, fm.msh.geometry.dim
     out = {}
@@ -110,11 +110,14 @@ def floating_pieces(scene: Scene, fm: FracturedMesh) -> dict[int, tuple[str, boo
 
 
 def check_pieces(scene: Scene, fm: FracturedMesh) -> None:
-    """Refuse a piece held by nothing (formulation none); warn of one held only by contact.
+    """Refuse a piece held by nothing; warn of one held only by contact.
 
     Raises:
         ConfigError: Open fractures (``contact.formulation`` none) and a floating piece: its
-            rigid motions make the elastic operator singular.
+            rigid motions make the elastic operator singular. Or frictionless contact and a
+            piece no displacement condition holds whose fracture faces leave a rigid motion
+            free (:attr:`~poromech.mesh.fractured.FracturedMesh.unblocked`): its position is
+            not determined.
     """
     floating = floating_pieces(scene, fm)
     if not floating:
