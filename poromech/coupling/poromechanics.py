@@ -449,7 +449,10 @@ class Poromechanics:
         """The step record: fixed-point statistics and the work of its ``g`` evaluations."""
         s, w = self.fixed_point.stats, self._work
         return {
-            "reason": self.fixed_point.reason_name(reason),
+            # accepted at the estimated error of g: not PETSc's reason (FNORM_ABS), which the
+            # tolerance coupling.atol was not reached for
+            "reason": ("CONVERGED_AT_NOISE" if reason > 0 and s.at_noise
+                       else self.fixed_point.reason_name(reason)),
             "converged": reason > 0,
             "iterations": s.iterations,
             "g_evaluations": w.evaluations,
