@@ -50,7 +50,7 @@ from poromech.io.checkpoint import scalar_row
 from poromech.mechanics.model import PressureCoupling
 from poromech.mechanics.newton import NewtonRecord, quoted_history
 from poromech.mechanics.physics import MechanicsPhysics
-from poromech.mechanics.predictor import MAX_RATIO
+from poromech.mechanics.predictor import extrapolated
 from poromech.mesh.entities import input_cells
 from poromech.mesh.fractured import FracturedMesh
 from poromech.physics import Keyed, StepResult
@@ -353,19 +353,15 @@ class Poromechanics:
     def _guess(self, t: float) -> Array:
         """Initial fixed-point iterate: the last pressures, linearly extrapolated in time.
 
-        Not over a step longer than :data:`~poromech.mechanics.predictor.MAX_RATIO` times the
-        last one, nor where the extrapolation is not finite (a collective choice).
+        Not over a step far longer than the last one, nor where the extrapolation is not finite
+        (:func:`~poromech.mechanics.predictor.extrapolated`, a collective choice).
         """
         (t1, p1) = self.history[-1]
         if not self.scene.coupling.extrapolate or len(self.history) < 2:
             return p1
         t0, p0 = self.history[-2]
-        r = (t - t1) / (t1 - t0)
-        if not r <= MAX_RATIO:
-            return p1
-        with np.errstate(over="ignore", invalid="ignore"):
-            p = p1 + r * (p1 - p0)
-        return p if self.comm.allreduce(bool(np.isfinite(p).all()), op=MPI.LAND) else p1
+        values = extrapolated(t, (t0, [p0]), (t1, [p1]), self.comm)
+        return p1 if values is None else values[0]
 
     def solve(self, t: float, dt: float | None) -> StepResult:
         """The fixed point of the step ending at ``t``.

@@ -9,7 +9,7 @@ import numpy.typing as npt
 from dolfinx import fem
 from mpi4py import MPI
 
-__all__ = ["START_NAMES", "StepPredictor", "start_rule"]
+__all__ = ["MAX_RATIO", "START_NAMES", "StepPredictor", "extrapolated", "start_rule"]
 
 History = list[tuple[float, list[npt.NDArray[np.float64]]]]
 
@@ -24,6 +24,23 @@ START_NAMES = {"extrapolate": "last two steps extrapolated", "last": "last accep
 #: cut of the second step failed on a residual that was not finite. Steps after a cut grow by
 #: at most the factor of the cut (16 after four halvings), far below it.
 MAX_RATIO = 1.0e3
+
+
+def extrapolated(t: float, earlier: tuple[float, list], last: tuple[float, list],
+                 comm: MPI.Comm) -> list[npt.NDArray[np.float64]] | None:
+    """Arrays at ``t`` extrapolated linearly from ``(t₀, x₀)`` and ``(t₁, x₁)`` (collective).
+
+    None, on every rank, for a step more than :data:`MAX_RATIO` times the last one or an
+    extrapolation that is not finite somewhere: start from ``x₁`` then.
+    """
+    (t0, x0), (t1, x1) = earlier, last
+    r = (t - t1) / (t1 - t0)
+    if not r <= MAX_RATIO:
+        return None
+    with np.errstate(over="ignore", invalid="ignore"):
+        values = [a1 + r * (a1 - a0) for a0, a1 in zip(x0, x1, strict=True)]
+    finite = all(bool(np.isfinite(v).all()) for v in values)
+    return values if comm.allreduce(finite, op=MPI.LAND) else None
 
 
 def start_rule(choice: str, dim: int, coupled: bool, formulation: str) -> str:
@@ -118,20 +135,15 @@ class StepPredictor:
                 self._history = [] if t > self._history[-1][0] else self._history
                 return
         if self.extrapolate and len(self._history) == 2 and t > self._history[1][0]:
-            (t0, x0), (t1, x1) = self._history
-            r = (t - t1) / (t1 - t0)
-            if not r <= MAX_RATIO:
+            values = extrapolated(t, *self._history, self.comm)
+            if values is None:
                 return
             at_last = self.merit() if self.merit is not None else None
-            finite = True
-            with np.errstate(over="ignore", invalid="ignore"):
-                for f, a0, a1 in zip(self.unknowns, x0, x1, strict=True):
-                    f.x.array[:] = a1 + r * (a1 - a0)
-                    finite = finite and bool(np.isfinite(f.x.array).all())
+            for f, a in zip(self.unknowns, values, strict=True):
+                f.x.array[:] = a
             self.start = "extrapolated"
-            finite = self.comm.allreduce(finite, op=MPI.LAND)
-            if not finite or (at_last is not None and not self.merit() < at_last):  # nan: last
-                for f, a1 in zip(self.unknowns, x1, strict=True):
+            if at_last is not None and not self.merit() < at_last:  # (a nan keeps the last)
+                for f, a1 in zip(self.unknowns, self._history[1][1], strict=True):
                     f.x.array[:] = a1
                 self.start = "last"
 

@@ -96,22 +96,28 @@ def unique_rows(rows: npt.ArrayLike) -> tuple[IntArray, int]:
     return ids, int(new.sum())
 
 
+def _facet_ids(cells: IntArray, fracture_facets: npt.ArrayLike) -> tuple[IntArray, IntArray]:
+    """Common ids of the cells' facets (row ``(d + 1) c + f``) and of the fracture facets."""
+    nv = cells.shape[1]
+    rows = np.sort(cells[:, facet_table(nv)], axis=2).reshape(-1, nv - 1)
+    frows = np.sort(np.asarray(fracture_facets, dtype=np.int64).reshape(-1, nv - 1), axis=1)
+    ids, _ = unique_rows(np.concatenate([rows, frows]))
+    return ids[: len(rows)], ids[len(rows):]
+
+
 def _open_facet_pairs(cells: IntArray, fracture_facets: IntArray):
     """``(c1, f1, c2, f2)``: cells sharing a facet that is not a fracture facet.
 
     Raises:
         ValueError: A fracture facet is not a facet of the mesh.
     """
-    nc, nv = cells.shape
-    ft = facet_table(nv)
-    rows = np.sort(cells[:, ft], axis=2).reshape(-1, nv - 1)
-    frows = np.sort(np.asarray(fracture_facets, dtype=np.int64).reshape(-1, nv - 1), axis=1)
-    ids, _ = unique_rows(np.concatenate([rows, frows]))
-    cid, fid = ids[: len(rows)], ids[len(rows):]
+    nv = cells.shape[1]
+    cid, fid = _facet_ids(cells, fracture_facets)
     missing = ~np.isin(fid, cid)
     if missing.any():
-        raise ValueError(f"fracture facet {frows[np.argmax(missing)].tolist()} is not a facet "
-                         "of the mesh")
+        frows = np.asarray(fracture_facets, dtype=np.int64).reshape(-1, nv - 1)
+        raise ValueError(f"fracture facet {np.sort(frows[np.argmax(missing)]).tolist()} is not "
+                         "a facet of the mesh")
     order = np.argsort(cid, kind="stable")
     sid = cid[order]
     pair = np.flatnonzero(sid[1:] == sid[:-1])
@@ -136,8 +142,8 @@ def piece_labels(cells: npt.ArrayLike, fracture_facets: npt.ArrayLike) -> IntArr
     return rank[label]
 
 
-def unblocked_motions(cells: npt.ArrayLike, x: npt.ArrayLike,
-                      fracture_facets: npt.ArrayLike) -> tuple[int, ...]:
+def unblocked_motions(cells: npt.ArrayLike, x: npt.ArrayLike, fracture_facets: npt.ArrayLike,
+                      labels: IntArray | None = None) -> tuple[int, ...]:
     """Per piece, how many of its rigid motions its fracture faces cannot stop by contact.
 
     A rigid motion ``r(x) = a + ω × x`` (3 in 2D, 6 in 3D) is stopped by a closed fracture
@@ -145,19 +151,17 @@ def unblocked_motions(cells: npt.ArrayLike, x: npt.ArrayLike,
     ``r(x_v)·n_f = 0`` at every vertex ``x_v`` of every fracture face of the piece (a block on
     a planar cut slides along it and turns about its normal; a wedge between two cuts at an
     angle is held). Returns the dimension of that space per piece, in :func:`piece_labels`'
-    order.
+    order (``labels``: the pieces' labels when already known).
     """
     cells = np.asarray(cells, dtype=np.int64)
     x = np.asarray(x, dtype=np.float64)
     nv, gdim = cells.shape[1], x.shape[1]
     ndof = 3 if gdim == 2 else 6
-    label = piece_labels(cells, fracture_facets)
+    label = piece_labels(cells, fracture_facets) if labels is None else labels
     npieces = int(label.max()) + 1 if len(cells) else 0
     frows = np.asarray(fracture_facets, dtype=np.int64).reshape(-1, nv - 1)
     # the cells on both sides of every fracture facet
-    rows = np.sort(cells[:, facet_table(nv)], axis=2).reshape(-1, nv - 1)
-    ids, _ = unique_rows(np.concatenate([rows, np.sort(frows, axis=1)]))
-    cid, fid = ids[: len(rows)], ids[len(rows):]
+    cid, fid = _facet_ids(cells, frows)
     order = np.argsort(cid, kind="stable")
     lo = np.searchsorted(cid[order], fid, "left")
     hi = np.searchsorted(cid[order], fid, "right")
@@ -195,8 +199,8 @@ def unblocked_motions(cells: npt.ArrayLike, x: npt.ArrayLike,
 
 
 def body_pieces(cells: npt.ArrayLike, fracture_facets: npt.ArrayLike,
-                boundary_facets: npt.ArrayLike, boundary_edge: npt.ArrayLike
-                ) -> tuple[tuple[int, tuple[int, ...]], ...]:
+                boundary_facets: npt.ArrayLike, boundary_edge: npt.ArrayLike,
+                labels: IntArray | None = None) -> tuple[tuple[int, tuple[int, ...]], ...]:
     """The pieces the fractures cut the body into, and the domain boundary each one touches.
 
     Two cells belong to one piece when a chain of cells sharing non-fracture facets joins them:
@@ -208,6 +212,7 @@ def body_pieces(cells: npt.ArrayLike, fracture_facets: npt.ArrayLike,
         fracture_facets: Nodes of the fracture facets.
         boundary_facets: Nodes of the domain boundary facets.
         boundary_edge: Domain edge (2D) or box face (3D) of each boundary facet.
+        labels: The pieces' labels (:func:`piece_labels`) when already known.
 
     Returns:
         Per piece, in the order of its first cell: its number of cells and the sorted domain
@@ -215,7 +220,7 @@ def body_pieces(cells: npt.ArrayLike, fracture_facets: npt.ArrayLike,
     """
     cells = np.asarray(cells, dtype=np.int64)
     nc, nv = cells.shape
-    label = piece_labels(cells, fracture_facets)
+    label = piece_labels(cells, fracture_facets) if labels is None else labels
     npieces = int(label.max()) + 1 if nc else 0
     # the cell of each boundary facet: its row among the sorted facet rows of all cells
     rows = np.sort(cells[:, facet_table(nv)], axis=2).reshape(-1, nv - 1)

@@ -33,6 +33,7 @@ from poromech.mesh.cracking import (
     body_pieces,
     crack_vertices,
     facet_table,
+    piece_labels,
     unblocked_motions,
 )
 from poromech.mesh.generate import MeshArrays
@@ -281,9 +282,10 @@ def create_fractured_mesh(
         cracked_rows, _ = crack_vertices(arrays.cells, arrays.fracture_facets, len(arrays.x))
         face_data = (arrays.fracture_id, arrays.fracture_segment, arrays.fracture_s)
         shape = (arrays.cells.shape[1], arrays.x.shape[1])
+        labels = piece_labels(arrays.cells, arrays.fracture_facets)
         pieces = body_pieces(arrays.cells, arrays.fracture_facets, arrays.boundary_facets,
-                             arrays.boundary_edge)
-        unblocked = (unblocked_motions(arrays.cells, arrays.x, arrays.fracture_facets)
+                             arrays.boundary_edge, labels)
+        unblocked = (unblocked_motions(arrays.cells, arrays.x, arrays.fracture_facets, labels)
                      if len(pieces) > 1 else ())
     else:
         cracked_rows, face_data, shape, pieces, unblocked = None, None, None, None, None
