@@ -10,6 +10,16 @@ among them at comparable cell counts. ``--reference``: the folder of the benchma
 (default ``../shared/data/fracture_flow_3d`` beside the repository). Writes
 ``docs/flow/berre.csv``, ``berre.md`` and ``berre_case1.png``, ``berre_case2.png``.
 
+``--participants DATA``: also every participating method of the benchmark, from the ``data``
+folder of a clone of its results repository (the benchmark's own,
+git.iws.uni-stuttgart.de/benchmarks/fracture-flow-3d, or its public mirror
+github.com/gridfunction/fracturedPorousMedia; ``DATA/single/results/<group>/<method>/`` and
+``DATA/regular/results/...``): their misfits, computed the same way, are written to
+``docs/flow/berre_participants.csv`` (derived numbers only, no copy of their data), which later
+runs without ``--participants`` read back. Each poromech row is then placed in the participants'
+spread at its own cell count: each method's misfit interpolated log-log between its refinements
+(``berre_spread.png``, the spread table of ``berre.md``).
+
 ``--sizes f ...``: also a fresh gmsh mesh of each case at ``f`` times its scene's mesh size
 (``mesh.size`` and ``mesh.fracture_size``, no refinement), rows ``size ×f``: whether a mesh made
 at the published mesh's cell count does better than a uniformly refined coarse one.
@@ -18,11 +28,13 @@ at the published mesh's cell count does better than a uniformly refined coarse o
     python scripts/flow_berre.py --sizes 0.4 0.35 --cases case1   # fresh meshes of case 1
     python scripts/flow_berre.py --levels 0 1    # a quick look
     python scripts/flow_berre.py --levels        # the published curves only
+    python scripts/flow_berre.py --sizes 0.5 0.4 --participants <clone>/data   # and the spread
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
 import os
 import re
 import shlex
@@ -105,6 +117,22 @@ CASES = {
 HEADER = ["case", "method", "refinement", "cells", "fracture_faces", "unknowns", "wall_s",
           "range_l2"]
 
+#: The participants' misfits (``--participants``), read back by later runs.
+PARTICIPANTS = DOCS / "berre_participants.csv"
+PARTICIPANT_HEADER = ["case", "method", "refinement", "cells", "fracture_faces", "unknowns",
+                      "range_l2", "same_as"]
+
+#: Refinements the benchmark asked every participant for (finer ones are the reference's).
+SUBMITTED_REFINEMENTS = (0, 1, 2)
+
+#: A method's misfit is read at a cell count within its refinements' range, widened by this
+#: factor at both ends (its end value there): participants' meshes of one refinement differ by
+#: up to 3.4 times in cells.
+SPREAD_MARGIN = 1.25
+
+SPREAD_HEADER = ["case", "poromech", "cells", "range_l2", "methods", "min", "median", "max",
+                 "better", "within"]
+
 
 def matrix_head(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """Arc length and matrix head of a benchmark ``*_dol_*.csv`` (its first column pair)."""
@@ -156,6 +184,149 @@ def published_rows(case: Case, folder: Path, curves: dict) -> tuple[list[list], 
                      sizes["fracture_faces"], sizes["unknowns"], np.nan, misfit])
         curves[(case.name, LABELS.get(method, method), r)] = (s, h)
     return rows, notes
+
+
+def participant_rows(case: Case, data: Path, folder: Path) -> list[list]:
+    """The misfit of every participating method of the case at its submitted refinements.
+
+    ``data``: the ``data`` folder of the benchmark's results repository, one folder per method
+    (``<prefix>/results/<group>/<method>/dol_[cond_<k>_]refinement_<r>.csv`` and
+    ``results[_cond_<k>].csv``); ``folder``: this study's reference data. Methods with equal
+    curves (one scheme submitted under two names) count once: the others name it in ``same_as``
+    and are left out of the spread.
+    """
+    s_ref, h_ref = reference_curve(case, folder)
+    cond = "" if case.cond is None else f"cond_{case.cond}_"
+    pattern = re.compile(rf"dol_{cond}refinement_(?P<r>\d+)\.csv")
+    base = data / case.prefix / "results"
+    if not base.is_dir():
+        raise FileNotFoundError(f"no participants' results in {base} (--participants: the "
+                                "benchmark repository's data folder)")
+    names = ([f"results_cond_{case.cond}.csv", "results_cond_0.csv", "results.csv"]
+             if case.cond is not None else ["results.csv"])
+    methods = []
+    for method_dir in sorted(p for p in base.glob("*/*") if p.is_dir()):
+        sizes = next((read_number_table(method_dir / n) for n in names
+                      if (method_dir / n).exists()), np.empty((0, len(RESULT_COLUMNS))))
+        curves = {}
+        for path in sorted(method_dir.iterdir()):
+            m = pattern.fullmatch(path.name)
+            if m is not None and int(m["r"]) in SUBMITTED_REFINEMENTS:
+                curves[int(m["r"])] = matrix_head(path)
+        if curves:
+            methods.append((f"{method_dir.parent.name}-{method_dir.name}", curves, sizes))
+    # one scheme under two names: the first with its mesh sizes stands for both
+    groups: dict[tuple, list[str]] = {}
+    for method, curves, _ in sorted(methods, key=lambda m: (len(m[2]) == 0, m[0])):
+        groups.setdefault(tuple(np.concatenate(curves[r]).tobytes() for r in sorted(curves)),
+                          []).append(method)
+    first = {m: group[0] for group in groups.values() for m in group}
+    rows = []
+    for method, curves, sizes in methods:
+        for r, (s, h) in sorted(curves.items()):
+            row = dict(zip(RESULT_COLUMNS, sizes[r], strict=True)) if r < len(sizes) else {}
+            rows.append([case.name, method, r, int(row.get("cells_3d", -1)),
+                         int(row.get("cells_2d", -1)), int(row.get("unknowns", -1)),
+                         line_differences(s_ref, h_ref, s, h)["range"],
+                         "" if first[method] == method else first[method]])
+    return rows
+
+
+def write_participants(rows: list[list], command: str) -> None:
+    """``docs/flow/berre_participants.csv`` with its provenance line."""
+    write_csv(PARTICIPANTS, PARTICIPANT_HEADER, rows,
+              comment=f"{generated(command, 1)}; range_l2 of each participating method's matrix "
+                      f"head against the reference {LABELS[REFERENCE_METHOD]} (Berre et al. 2021 "
+                      "results repository); cells -1: not in the method's results file")
+
+
+def read_participants(path: Path = PARTICIPANTS) -> list[list]:
+    """The rows ``write_participants`` wrote (empty when the file is not there)."""
+    if not path.exists():
+        return []
+    with open(path) as f:
+        lines = [line for line in f if not line.startswith("#")]
+    rows = list(csv.reader(lines))[1:]
+    return [[c, m, int(r), int(n), int(ff), int(u), float(e), same]
+            for c, m, r, n, ff, u, e, same in rows]
+
+
+def spread_at(case: str, cells: float, participants: list[list]) -> dict[str, float]:
+    """Each distinct participating method's misfit at ``cells`` (log-log between refinements).
+
+    Methods with an unknown cell count, or whose refinements (widened by ``SPREAD_MARGIN``) do
+    not reach ``cells``, are left out.
+    """
+    by_method: dict[str, list[tuple[int, float]]] = {}
+    for c, method, _, n, _, _, misfit, same_as in participants:
+        if c == case and not same_as and n > 0 and np.isfinite(misfit):
+            by_method.setdefault(method, []).append((n, misfit))
+    out = {}
+    for method, points in by_method.items():
+        n, e = np.array(sorted(points)).T
+        if not n[0] / SPREAD_MARGIN <= cells <= n[-1] * SPREAD_MARGIN:
+            continue
+        out[method] = float(10 ** np.interp(np.log10(cells), np.log10(n), np.log10(e)))
+    return out
+
+
+def spread_rows(rows: list[list], participants: list[list]) -> list[list]:
+    """Each poromech row against the participants' spread at its cell count."""
+    out = []
+    for case, method, tag, cells, _, _, _, misfit in rows:
+        if method != "poromech":
+            continue
+        values = spread_at(case, cells, participants)
+        if not values:
+            out.append([case, tag, cells, misfit, 0, np.nan, np.nan, np.nan, "–",
+                        "finer than every participant"])
+            continue
+        v = np.array(list(values.values()))
+        within = "yes" if v.min() <= misfit <= v.max() else (
+            "below (better)" if misfit < v.min() else "above (worse)")
+        out.append([case, tag, cells, misfit, len(v), v.min(), float(np.median(v)), v.max(),
+                    f"{int(np.sum(v < misfit))} of {len(v)}", within])
+    return out
+
+
+def plot_spread(cases: list[Case], rows: list[list], participants: list[list]) -> str:
+    """Misfit against cells: every participating method (thin) and poromech (bold)."""
+    fig, axes = plt.subplots(1, len(cases), figsize=(4.6 * len(cases), 4.2), squeeze=False)
+    for ax, case in zip(axes[0], cases, strict=True):
+        methods = dict.fromkeys(m for c, m, _, n, *_, same in participants
+                                if c == case.name and not same and n > 0)
+        for method in methods:
+            pts = sorted((n, e) for c, m, _, n, _, _, e, _ in participants
+                         if c == case.name and m == method and n > 0)
+            if not pts:
+                continue
+            n, e = np.array(pts).T
+            hfv = method == "UNICE_UNIGE-HFV_Disc"
+            ax.loglog(n, e, "s--" if hfv else ".-", color="tab:blue" if hfv else "0.65",
+                      lw=1.4 if hfv else 0.8, ms=5 if hfv else 4, zorder=3 if hfv else 2,
+                      label="UNICE_UNIGE-HFV_Disc (published)" if hfv else None)
+        ax.plot([], [], ".-", color="0.65", label="participating methods")
+        mine = [(r[3], r[7]) for r in rows if r[0] == case.name and r[1] == "poromech"
+                and isinstance(r[2], int)]
+        if mine:
+            n, e = np.array(sorted(mine)).T
+            ax.loglog(n, e, "o-", color="k", lw=2, zorder=4, label="poromech HFV (levels)")
+        fresh = [(r[3], r[7]) for r in rows if r[0] == case.name and r[1] == "poromech"
+                 and not isinstance(r[2], int)]
+        if fresh:
+            n, e = np.array(fresh).T
+            ax.loglog(n, e, "D", color="tab:red", zorder=4, label="poromech, gmsh at a size")
+        ax.set_title(f"{case.title} ({len(methods)} methods)", fontsize=10)
+        ax.set_xlabel("matrix cells")
+        ax.set_ylabel("range_l2 of the matrix head")
+        ax.grid(alpha=0.3, which="both")
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=4, fontsize=8,
+               bbox_to_anchor=(0.5, -0.04))
+    fig.tight_layout(rect=(0, 0.04, 1, 1))
+    save_figure(fig, DOCS / "berre_spread.png")
+    plt.close(fig)
+    return "berre_spread.png"
 
 
 def probe_misfit(probe_csv: Path, s_ref: np.ndarray, h_ref: np.ndarray
@@ -235,8 +406,15 @@ def plot(cases: list[Case], folder: Path, curves: dict) -> list[str]:
 
 
 def command_line(argv: list[str]) -> str:
-    """The command as typed, for the provenance line (the data folder when not the default)."""
-    return " ".join(["python scripts/flow_berre.py", *map(shlex.quote, argv)])
+    """The command as typed, for the provenance line.
+
+    A participants' folder is written as ``<clone>/data`` (no path of the machine that ran it).
+    """
+    words, hide = [], False
+    for a in argv:
+        words.append("<clone>/data" if hide else shlex.quote(a))
+        hide = a == "--participants"
+    return " ".join(["python scripts/flow_berre.py", *words])
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -251,10 +429,17 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--sizes", type=float, nargs="*", default=[],
                    help="also fresh meshes at these factors of the scenes' mesh sizes")
     p.add_argument("--cases", nargs="+", choices=sorted(CASES), default=list(CASES))
+    p.add_argument("--participants", type=Path,
+                   help="the data folder of a clone of the benchmark's results repository: "
+                        "every participating method's misfit (else docs/flow/"
+                        "berre_participants.csv of an earlier run)")
     args = p.parse_args(argv)
     folder = Path(args.reference)
     if not folder.is_dir():
         p.error(f"no benchmark data in {folder} (give --reference)")
+    if args.participants is not None and not (args.participants / "single").is_dir():
+        p.error(f"--participants {args.participants}: no single/results folder in it (the "
+                "data folder of the benchmark's results repository)")
     cases = [CASES[c] for c in args.cases]
     DOCS.mkdir(parents=True, exist_ok=True)
     rows, notes, curves = [], [], {}
@@ -271,8 +456,18 @@ def main(argv: list[str] | None = None) -> None:
                 print(rows[-1], flush=True)
     command = command_line(argv)
     ranks = MPI.COMM_WORLD.size
+    if args.participants is not None:
+        participants = [r for case in CASES.values()
+                        for r in participant_rows(case, args.participants, folder)]
+        write_participants(participants, command)
+    else:
+        participants = read_participants()
+    participants = [r for r in participants if r[0] in args.cases]
     write_csv(DOCS / "berre.csv", HEADER, rows, comment=generated(command, ranks))
     figures = plot(cases, folder, curves)
+    spread = spread_rows(rows, participants) if participants else []
+    if spread:
+        figures.append(plot_spread(cases, rows, participants))
     text = (generated(command, ranks) + ". range_l2 = ‖h - h_ref‖/(|line|^½ (max h_ref - "
             "min h_ref)) in L² along the benchmark's line (the matrix head; the normalization of "
             "the 2D study, docs/flow/flemisch.md), h_ref the reference "
@@ -284,6 +479,18 @@ def main(argv: list[str] | None = None) -> None:
     if notes:
         text += "".join(f"* {n}\n" for n in notes) + "\n"
     text += markdown_table(HEADER, rows)
+    if spread:
+        same = sorted({f"{m} = {same}" for _, m, *_, same in participants if same})
+        text += ("\n## Among the benchmark's participating methods\n\nEach poromech row against "
+                 "the participating methods of the benchmark at its cell count (berre_"
+                 "participants.csv: each method's misfit at its refinements 0-2, computed as "
+                 "above; here interpolated log-log between them, methods whose meshes do not "
+                 f"reach the count within a factor {SPREAD_MARGIN:g} left out). methods: how "
+                 "many; min / median / max of their misfits; better: how many have a smaller "
+                 "one; within: poromech between the smallest and the largest. Identical curves "
+                 "submitted under two names count once"
+                 + (f" ({'; '.join(same)})" if same else "") + ".\n\n")
+        text += markdown_table(SPREAD_HEADER, spread)
     text += "\n" + "".join(f"![{f}]({f})\n" for f in figures)
     (DOCS / "berre.md").write_text(text)
 

@@ -184,6 +184,11 @@ def test_reader_fortran_exponents(tmp_path):
     f = tmp_path / "dol.csv"
     f.write_text("0.00000D+00,0.40000D+01\n\n0.17321d+00, 3.775E0\n")
     assert np.array_equal(read_number_table(f), [[0.0, 4.0], [0.17321, 3.775]])
+    f.write_text("0.0,2.1289,\n0.1,2.2,\n")  # a trailing comma: one participant's rows
+    assert np.array_equal(read_number_table(f), [[0.0, 2.1289], [0.1, 2.2]])
+    f.write_text("0.0,1.0\n0.1,,\n")
+    with pytest.raises(ValueError, match="line 2"):
+        read_number_table(f)
     f.write_text("0.0,1.0\n0.1,x\n")
     with pytest.raises(ValueError, match="line 2"):
         read_number_table(f)
@@ -233,3 +238,55 @@ def test_published_misfits(study, tmp_path):
     lines += [f"0,{a:.17g},0,0,0,{b:.17g}," for a, b in zip(s, h, strict=True)]
     probe.write_text("\n".join(lines) + "\n")
     assert study.probe_misfit(probe, s, h)[0] == pytest.approx(0.0, abs=1e-14)
+
+
+def test_participants_spread(study, tmp_path, monkeypatch):
+    """Participants' misfits from a results folder (one scheme under two names counts once), the
+    log-log reading at a cell count with its margin, and a poromech row placed in the spread."""
+    case = study.CASES["case1"]
+    s, h = study.reference_curve(case, REFERENCE)
+    span = h.max() - h.min()
+    data_dir = tmp_path / "data"
+
+    def method(group, name, offsets, cells):
+        d = data_dir / "single" / "results" / group / name
+        d.mkdir(parents=True)
+        for r, off in enumerate(offsets):  # a trailing comma, as one participant writes
+            (d / f"dol_refinement_{r}.csv").write_text(
+                "".join(f"{a:.17g},{b + off * span:.17g},\n" for a, b in zip(s, h, strict=True)))
+        if cells:
+            (d / "results.csv").write_text("".join(f"0,0,{n // 10},{n},{2 * n},0\n"
+                                                   for n in cells))
+
+    method("A", "Y", [0.08, 0.04, 0.02], None)  # X's curves under a second name, no sizes
+    method("A", "X", [0.08, 0.04, 0.02], [1000, 10000, 100000])
+    method("B", "Z", [0.02, 0.01, 0.005, 0.001], [2000, 20000, 200000, 2000000])
+    method("C", "W", [0.5], [1000])
+    rows = study.participant_rows(case, data_dir, REFERENCE)
+    by = {(r[1], r[2]): r for r in rows}
+    assert ("B-Z", 3) not in by  # refinement 3 is not a submitted one
+    assert by[("A-X", 0)][3:7] == [1000, 100, 2000, pytest.approx(0.08, rel=1e-9)]
+    assert by[("A-Y", 1)][3] == -1 and by[("A-Y", 1)][7] == "A-X"
+    assert {by[k][7] for k in by if k[0] != "A-Y"} == {""}
+    monkeypatch.setattr(study, "PARTICIPANTS", tmp_path / "participants.csv")
+    study.write_participants(rows, "python scripts/flow_berre.py")
+    back = study.read_participants(tmp_path / "participants.csv")
+    assert [r[:6] + r[7:] for r in back] == [r[:6] + r[7:] for r in rows]
+    assert np.allclose([r[6] for r in back], [r[6] for r in rows], rtol=1e-5)
+
+    mid = study.spread_at("case1", np.sqrt(1000 * 10000), rows)  # W reaches 1250 cells only
+    assert mid == pytest.approx({"A-X": np.sqrt(0.08 * 0.04),
+                                 "B-Z": 0.02 * (np.sqrt(10) / 2) ** np.log10(0.5)}, rel=1e-4)
+    assert study.spread_at("case1", 900, rows) == pytest.approx({"A-X": 0.08, "C-W": 0.5},
+                                                                rel=1e-4)
+    table = study.spread_rows([["case1", "poromech", 1, 3162, 0, 0, np.nan, 0.03],
+                               ["case1", "poromech", 2, 900, 0, 0, np.nan, 0.9],
+                               ["case1", "poromech", 3, 10**7, 0, 0, np.nan, 0.001]], rows)
+    z = 0.02 * 0.5 ** np.log10(3162 / 2000)
+    x = 0.08 * 0.5 ** np.log10(3162 / 1000)
+    assert table[0][4:] == [2, pytest.approx(z, rel=1e-4), pytest.approx((x + z) / 2, rel=1e-4),
+                            pytest.approx(x, rel=1e-4), "1 of 2", "yes"]
+    assert table[1][-2:] == ["2 of 2", "above (worse)"]
+    assert table[2][4] == 0 and table[2][-1] == "finer than every participant"
+    assert study.command_line(["--participants", "/somewhere/data", "--levels"]) == \
+        "python scripts/flow_berre.py --participants <clone>/data --levels"

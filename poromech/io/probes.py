@@ -222,7 +222,8 @@ def read_number_table(path: Path) -> np.ndarray:
 
     The format of the 3D fracture-flow benchmark's data (Berre et al. 2021): ``*_dol_*.csv``
     hold curves along a line as (arc length, value) column pairs (``0.40000D+01`` is 4.0),
-    ``*_results*.csv`` a row of cell counts and unknowns per refinement. Blank lines are skipped.
+    ``*_results*.csv`` a row of cell counts and unknowns per refinement. Blank lines are skipped,
+    and so is one trailing comma of a line (some participants' files end their rows with one).
 
     Raises:
         ValueError: A field is not a number, or the rows differ in length.
@@ -234,7 +235,7 @@ def read_number_table(path: Path) -> np.ndarray:
                 continue
             try:
                 rows.append([float(v.strip().replace("D", "e").replace("d", "e"))
-                             for v in line.split(",")])
+                             for v in line.rstrip().removesuffix(",").split(",")])
             except ValueError:
                 raise ValueError(f"{path}, line {k}: not a row of numbers: {line.strip()!r}")\
                     from None
