@@ -24,11 +24,17 @@ spread at its own cell count: each method's misfit interpolated log-log between 
 (``mesh.size`` and ``mesh.fracture_size``, no refinement), rows ``size ×f``: whether a mesh made
 at the published mesh's cell count does better than a uniformly refined coarse one.
 
+``--graded f ...``: also a fresh mesh at ``f`` times the scene's sizes, graded to
+``GRADED_ZONE_SIZE`` times that size in balls along the edge of the Dirichlet patch where the
+head is singular (``Case.zone_centers``, ``mesh.zones``), rows ``graded ×f``: the misfit along
+the line is set there (docs/flow3d.md, "Results").
+
     python scripts/flow_berre.py                 # levels 0-3: 1k to 630k cells, ~3 min
     python scripts/flow_berre.py --sizes 0.4 0.35 --cases case1   # fresh meshes of case 1
     python scripts/flow_berre.py --levels 0 1    # a quick look
     python scripts/flow_berre.py --levels        # the published curves only
-    python scripts/flow_berre.py --sizes 0.5 0.4 --participants <clone>/data   # and the spread
+    # the study of docs/flow3d.md (D: the data folder of a clone of the results repository):
+    python scripts/flow_berre.py --sizes 0.5 0.4 0.25 --graded 1 0.5 0.25 --participants D
 """
 
 from __future__ import annotations
@@ -80,6 +86,10 @@ class Case:
         reference_refinement: Refinement of the reference method's curve.
         figure: PNG the case is drawn in (one per benchmark case).
         title: Panel title.
+        zone_centers: Balls of ``--graded`` meshes, along the edge of the Dirichlet patch (the
+            head's singularity: case 1 the inflow patch's edge x = 0, z = 90; case 2 the
+            outflow corner).
+        zone_radius: Their radius.
     """
 
     name: str
@@ -89,6 +99,8 @@ class Case:
     reference_refinement: int
     figure: str
     title: str
+    zone_centers: tuple[tuple[float, float, float], ...] = ()
+    zone_radius: float = 0.0
 
     def dol_pattern(self) -> re.Pattern:
         """``<prefix>_<method>_dol_[cond_<k>_]refinement_<r>.csv``."""
@@ -105,14 +117,20 @@ class Case:
         return [f"{self.prefix}_{method}_results_cond_{k}.csv" for k in (self.cond, 0)]
 
 
+_INFLOW_EDGE = tuple((0.0, float(y), 95.0) for y in range(0, 101, 20))
 CASES = {
     "case1": Case("case1", "berre_case1", "single", None, 5, "berre_case1.png",
-                  "case 1, single fracture"),
+                  "case 1, single fracture", _INFLOW_EDGE, 12.0),
     "case2_conductive": Case("case2_conductive", "berre_case2_conductive", "regular", 0, 4,
-                             "berre_case2.png", "case 2, conductive fractures"),
+                             "berre_case2.png", "case 2, conductive fractures",
+                             ((1.0, 1.0, 1.0),), 0.25),
     "case2_blocking": Case("case2_blocking", "berre_case2_blocking", "regular", 1, 4,
-                           "berre_case2.png", "case 2, blocking fractures"),
+                           "berre_case2.png", "case 2, blocking fractures",
+                           ((1.0, 1.0, 1.0),), 0.25),
 }
+
+#: Element size in the balls of a ``--graded`` mesh, relative to its size elsewhere.
+GRADED_ZONE_SIZE = 0.3
 
 HEADER = ["case", "method", "refinement", "cells", "fracture_faces", "unknowns", "wall_s",
           "range_l2"]
@@ -311,11 +329,14 @@ def plot_spread(cases: list[Case], rows: list[list], participants: list[list]) -
         if mine:
             n, e = np.array(sorted(mine)).T
             ax.loglog(n, e, "o-", color="k", lw=2, zorder=4, label="poromech HFV (levels)")
-        fresh = [(r[3], r[7]) for r in rows if r[0] == case.name and r[1] == "poromech"
-                 and not isinstance(r[2], int)]
-        if fresh:
-            n, e = np.array(fresh).T
-            ax.loglog(n, e, "D", color="tab:red", zorder=4, label="poromech, gmsh at a size")
+        for kind, style, color, label in (("size", "D", "tab:red", "poromech, gmsh at a size"),
+                                          ("graded", "^-", "tab:green",
+                                           "poromech, graded at the patch edge")):
+            fresh = sorted((r[3], r[7]) for r in rows if r[0] == case.name
+                           and r[1] == "poromech" and str(r[2]).startswith(kind))
+            if fresh:
+                n, e = np.array(fresh).T
+                ax.loglog(n, e, style, color=color, zorder=4, label=label)
         ax.set_title(f"{case.title} ({len(methods)} methods)", fontsize=10)
         ax.set_xlabel("matrix cells")
         ax.set_ylabel("range_l2 of the matrix head")
@@ -337,12 +358,26 @@ def probe_misfit(probe_csv: Path, s_ref: np.ndarray, h_ref: np.ndarray
     return line_differences(s_ref, h_ref, s, h)["range"], s, h
 
 
+def graded_zones(case: Case, size: float, around: float) -> str:
+    """The ``mesh.zones`` override of a graded mesh: balls of ``size`` along the patch edge.
+
+    The size grows to ``around`` over at least twice the difference (a grading of 0.5, gentle
+    enough for gmsh's tetrahedra).
+    """
+    transition = max(case.zone_radius, 2.0 * (around - size))
+    balls = ", ".join(f"{{center: [{x:g}, {y:g}, {z:g}], radius: {case.zone_radius:g}, "
+                      f"size: {size:g}, transition: {transition:g}, region: ball}}"
+                      for x, y, z in case.zone_centers)
+    return f"mesh.zones=[{balls}]"
+
+
 def run_level(case: Case, level: int, folder: Path, work: Path, curves: dict,
-              size_factor: float | None = None) -> list:
+              size_factor: float | None = None, graded: bool = False) -> list:
     """Run the case's scene at a refinement level and compare its probe with the reference.
 
     ``size_factor``: instead, a fresh mesh at that factor times the scene's mesh sizes (the row's
-    refinement column says ``size ×f``; its curve is not drawn).
+    refinement column says ``size ×f``; its curve is not drawn). ``graded``: that mesh graded
+    towards the case's ``zone_centers`` (``graded ×f``).
     """
     from poromech.run import run_scene
     from poromech.scene.loading import load_scene
@@ -354,9 +389,12 @@ def run_level(case: Case, level: int, folder: Path, work: Path, curves: dict,
         mesh = load_scene(path).mesh
         sets = [f"mesh.size={size_factor * mesh.size:g}",
                 f"mesh.fracture_size={size_factor * mesh.fracture_size:g}"]
-        tag = f"size ×{size_factor:g}"
+        tag = f"{'graded' if graded else 'size'} ×{size_factor:g}"
+        if graded:
+            sets.append(graded_zones(case, GRADED_ZONE_SIZE * size_factor * mesh.size,
+                                     size_factor * mesh.size))
     scene = load_scene(path, [*sets, "output.xdmf=false"])
-    out = work / f"{case.name}_{'m' if size_factor is None else 's'}{level}"
+    out = work / f"{case.name}_{'m' if size_factor is None else 'g' if graded else 's'}{level}"
     summary = run_scene(scene, out, MPI.COMM_WORLD)
     s_ref, h_ref = reference_curve(case, folder)
     misfit, s, h = probe_misfit(out / f"probe_{scene.probes[0].name}.csv", s_ref, h_ref)
@@ -428,6 +466,9 @@ def main(argv: list[str] | None = None) -> None:
                    help="refinement levels of the poromech runs (none: published curves only)")
     p.add_argument("--sizes", type=float, nargs="*", default=[],
                    help="also fresh meshes at these factors of the scenes' mesh sizes")
+    p.add_argument("--graded", type=float, nargs="*", default=[],
+                   help="also fresh meshes at these factors, graded towards the singular edge "
+                        "of the Dirichlet patch")
     p.add_argument("--cases", nargs="+", choices=sorted(CASES), default=list(CASES))
     p.add_argument("--participants", type=Path,
                    help="the data folder of a clone of the benchmark's results repository: "
@@ -454,6 +495,10 @@ def main(argv: list[str] | None = None) -> None:
             for k, f in enumerate(args.sizes):
                 rows.append(run_level(case, k, folder, Path(tmp), curves, size_factor=f))
                 print(rows[-1], flush=True)
+            for k, f in enumerate(args.graded):
+                rows.append(run_level(case, k, folder, Path(tmp), curves, size_factor=f,
+                                      graded=True))
+                print(rows[-1], flush=True)
     command = command_line(argv)
     ranks = MPI.COMM_WORLD.size
     if args.participants is not None:
@@ -473,7 +518,10 @@ def main(argv: list[str] | None = None) -> None:
             "the 2D study, docs/flow/flemisch.md), h_ref the reference "
             f"{LABELS[REFERENCE_METHOD]} at its finest mesh; poromech levels: the scene's mesh "
             "refined uniformly (8 times the cells per level), or made by gmsh at a factor of its "
-            "sizes (size ×f), wall_s the whole run (meshing "
+            "sizes (size ×f), or that mesh graded to "
+            f"{GRADED_ZONE_SIZE:g} of its size along the singular edge of the head's Dirichlet "
+            "patch (graded ×f; scripts/flow_berre.py, Case.zone_centers), wall_s the whole run "
+            "(meshing "
             "included); published methods: cells, fracture faces and unknowns from their "
             "results files.\n\n")
     if notes:

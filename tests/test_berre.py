@@ -290,3 +290,21 @@ def test_participants_spread(study, tmp_path, monkeypatch):
     assert table[2][4] == 0 and table[2][-1] == "finer than every participant"
     assert study.command_line(["--participants", "/somewhere/data", "--levels"]) == \
         "python scripts/flow_berre.py --participants <clone>/data --levels"
+
+
+def test_graded_meshes_of_the_study(study):
+    """``--graded``: balls along the singular edge of the Dirichlet patch, as a valid override."""
+    from poromech.scene.loading import load_scene
+
+    for name, case in study.CASES.items():
+        override = study.graded_zones(case, 6.0 if name == "case1" else 0.075,
+                                      20.0 if name == "case1" else 0.25)
+        scene = load_scene(ROOT / "configs" / f"{case.scene}.yaml", [override])
+        zones = scene.mesh.zones
+        assert len(zones) == len(case.zone_centers) == (6 if name == "case1" else 1)
+        assert {z.size for z in zones} == {6.0 if name == "case1" else 0.075}
+        # grading 0.5: the size grows over twice the difference
+        assert {z.transition for z in zones} == {28.0 if name == "case1" else 0.35}
+    case1 = study.CASES["case1"]
+    assert {c[0] for c in case1.zone_centers} == {0.0} and {c[2] for c in case1.zone_centers} \
+        == {95.0}  # the inflow patch's edge: x = 0, z = 90 (balls of radius 12 over 90-100)
