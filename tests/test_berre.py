@@ -308,3 +308,19 @@ def test_graded_meshes_of_the_study(study):
     case1 = study.CASES["case1"]
     assert {c[0] for c in case1.zone_centers} == {0.0} and {c[2] for c in case1.zone_centers} \
         == {95.0}  # the inflow patch's edge: x = 0, z = 90 (balls of radius 12 over 90-100)
+
+
+def test_fracture_ends_on_a_box_face():
+    """``fracture_ends`` in 3D: which box faces the fracture reaches (it crashed in 3D)."""
+    from poromech.scene.usage import unused_keys
+
+    scene = built_scene("berre_case1")
+    geo = scene_geometry(scene)
+    # the fracture (0,0,80)-(100,0,20)-(100,100,20)-(0,100,80) reaches every side face
+    reached = {n: any(u.key for u in unused_keys(
+        replace(scene, flow=replace(scene.flow, boundary_conditions=(
+            replace(scene.flow.boundary_conditions[0], boundary=n),))),
+        ["flow.boundary_conditions.0.fracture_ends"], geo)) for n in
+        ("left", "right", "front", "back", "bottom", "top")}
+    assert reached == {"left": False, "right": False, "front": False, "back": False,
+                       "bottom": True, "top": True}  # True: reported as without effect

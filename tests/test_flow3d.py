@@ -226,6 +226,8 @@ def test_scene_with_partial_boundaries(tmp_path):
     ("flow.permeability", {"permeability": [1e-12, 1e-12]}, "[k], [k_xx, k_yy, k_zz] or"),
     ("flow.permeability", {"permeability": [1e-12, 2e-12, 1e-12, 1e-12, 0, 1e-12]},
      "positive definite"),
+    ("flow.permeability", {"permeability": [0.0]}, "positive definite"),  # not a LinAlgError
+    ("flow.permeability", {"permeability": [0.0, 0.0, 0.0]}, "positive definite"),
     ("flow.boundary_conditions.1.boundary", {"boundary": "left", "where": None},
      "already has a flow condition"),
 ])

@@ -239,7 +239,15 @@ def _zone_unused(scene: Scene, zone, geo: PlaneGeometry) -> str | None:
 
 
 def _fracture_ends_on(geo: PlaneGeometry, name: str) -> bool:
-    """True when a fracture has an end point on the boundary edges called ``name``."""
+    """True when a fracture ends on the boundary called ``name``.
+
+    2D: an end point on one of its edges; 3D: a point of a fracture's outline on the box face.
+    """
+    if hasattr(geo, "face_plane"):  # a box (3D): the outlines against the face planes
+        tol = 1e-9 * geo.diameter
+        faces = [i for i, n in enumerate(geo.boundary_names) if n == name]
+        return any(bool(geo.on_boundary(fr.outline(), tol)[:, faces].any())
+                   for fr in geo.fractures)
     ends = [p[i] for p in geo.fractures for i in (0, -1)]
     poly = geo.boundary
     tol = 1e-9 * geo.diameter

@@ -230,6 +230,7 @@ def _positive_definite_3d(k: list[np.ndarray]) -> np.ndarray:
         T = np.stack([np.stack([xx, xy, xz], -1), np.stack([xy, yy, yz], -1),
                       np.stack([xz, yz, zz], -1)], -2)
     ok = np.isfinite(T).all(axis=(1, 2))
+    ok[ok] = np.abs(T[ok]).max(axis=(1, 2)) > 0  # a zero tensor is not positive definite
     out = np.zeros(n, dtype=bool)
     if ok.any():
         scale = np.abs(T[ok]).max(axis=(1, 2))
