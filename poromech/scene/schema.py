@@ -534,7 +534,9 @@ class Probe:
     interpolation: Literal["linear", "constant"] = field(
         default="linear",
         metadata=doc("linear: p_m from the HFV cell gradient, p_f linear between face and node "
-                     "values; constant: the cell / face value (flow and poromechanics)"),
+                     "values in 2D (in 3D the face value on the whole triangle: the fracture "
+                     "unknowns are on its edges); constant: the cell / face value (flow and "
+                     "poromechanics)"),
     )
 
 
