@@ -23,7 +23,7 @@ import yaml
 from mpi4py import MPI
 
 import poromech
-from poromech.errors import SolverError
+from poromech.errors import ConfigError, SolverError
 from poromech.io.checkpoint import load_checkpoint, save_checkpoint
 from poromech.io.output import write_summary
 from poromech.mesh.fractured import FracturedMesh, distribute_mesh
@@ -31,7 +31,7 @@ from poromech.mesh.generate import generate_mesh
 from poromech.physics import Physics
 from poromech.scene.fields import validate_fields
 from poromech.scene.geometry import mesh_sizes, scene_geometry
-from poromech.scene.schema import Scene
+from poromech.scene.schema import Scene, step_times
 from poromech.stepping import Interrupted, run_steps, stop_signals
 from poromech.timing import Timer
 
@@ -254,12 +254,25 @@ class Run:
         return start, resume
 
     def _check_restart(self, meta: dict) -> None:
-        """The checkpoint must come from the same scene on the same mesh."""
+        """The checkpoint must come from the same scene on the same mesh and time steps.
+
+        The steps it completed must end where the scene's do (the scene may add steps after
+        them, as when a finished run is extended): else the run would go back in time.
+        """
         summary = self.summary
         if meta["mesh"] != summary["mesh"] or meta.get("dofs") != summary.get("dofs"):
             raise ValueError(f"the checkpoint was written for another mesh ({meta['mesh']}, "
                              f"{meta.get('dofs')} dofs) than this one ({summary['mesh']}, "
                              f"{summary.get('dofs')} dofs)")
+        done, t = int(meta["steps_done"]), float(meta["time"])
+        times = step_times(self.scene)
+        if done > 0 and (done > len(times)
+                         or abs(times[done - 1] - t) > 1e-12 * max(abs(t), abs(times[-1]))):
+            there = (f"the scene's step {done} ends at t = {times[done - 1]:g} s"
+                     if done <= len(times) else f"the scene has only {len(times)} steps")
+            raise ConfigError(f"the checkpoint ends after step {done} at t = {t:g} s, but {there}: "
+                             "the time keys changed since it was written (a restart continues "
+                             "the same steps, and may add steps after them)")
 
     def _after_step(self, k: int, t: float) -> None:
         """Summary and checkpoint after step ``k`` (ending at ``t``) was accepted."""

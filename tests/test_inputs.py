@@ -628,3 +628,21 @@ def test_a_missing_section_names_the_scene_physics():
     for name, key in (("flow_six_fractures", "material"), ("sneddon", "flow")):
         with pytest.raises(ConfigError, match=f"'{key}' is required for physics 'poromechanics'"):
             load_scene(ROOT / "configs" / f"{name}.yaml", ["physics=poromechanics"])
+
+
+def test_restart_with_other_time_steps_is_refused(tmp_path, capsys):
+    """A checkpoint whose steps do not end where the edited scene's do is refused (the run went
+    back in time: t = 30 s after t = 50 s); steps added after the last one are accepted."""
+    out = tmp_path / "tz"
+    assert cli(capsys, "run", "terzaghi", "-o", out, "--set", "time.steps=4")[0] == 0
+    stored = out / "poromech_scene.yaml"
+    raw = yaml.safe_load(stored.read_text())
+    raw["time"] = {"final": 20.0, "steps": 8}  # step 4 now ends at 10 s, not 20 s
+    stored.write_text(yaml.safe_dump(raw))
+    refused(capsys, "run", "--restart", out,
+            fragments=["after step 4 at t = 20 s", "step 4 ends at t = 10 s", "time keys"])
+    raw["time"] = {"final": 30.0, "steps": 6}  # the same four steps, and two more
+    stored.write_text(yaml.safe_dump(raw))
+    assert cli(capsys, "run", "--restart", out)[0] == 0
+    times = [s["time"] for s in json.loads((out / "summary.json").read_text())["solves"]]
+    assert times == [5.0, 10.0, 15.0, 20.0, 25.0, 30.0]
