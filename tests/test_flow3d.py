@@ -227,6 +227,7 @@ def test_scene_with_partial_boundaries(tmp_path):
     ("flow.permeability", {"permeability": [1e-12, 2e-12, 1e-12, 1e-12, 0, 1e-12]},
      "positive definite"),
     ("flow.permeability", {"permeability": [0.0]}, "positive definite"),  # not a LinAlgError
+    ("flow.aperture", {"aperture": "x - 2"}, ", z="),  # the point with its z
     ("flow.permeability", {"permeability": [0.0, 0.0, 0.0]}, "positive definite"),
     ("flow.boundary_conditions.1.boundary", {"boundary": "left", "where": None},
      "already has a flow condition"),

@@ -162,7 +162,8 @@ def check_values(values: np.ndarray, points: np.ndarray, path: str, expr: Expres
     if not bad.any():
         return
     i = int(np.flatnonzero(bad)[0])
-    at = f"x={points[i, 0]:g}, y={points[i, 1]:g}" + ("" if t is None else f", t={t:g}")
+    at = ", ".join(f"{c}={points[i, k]:g}" for k, c in enumerate("xyz"[:points.shape[1]]))
+    at += "" if t is None else f", t={t:g}"
     at += f" ({what})" if what else ""
     head = f"scene key '{path}' = {format_value(expr.source)} is {float(values[i]):g} at {at}"
     if rule is None:
