@@ -295,3 +295,22 @@ def test_shipped_network_scene(tmp_path):
     lower = np.genfromtxt(tmp_path / "probe_lower.csv", delimiter=",", names=True)
     assert np.all(np.isfinite(lower["p_f"][lower["x"] > 0.36]))  # along xa
     assert np.all(np.isnan(lower["p_f"][lower["x"] < 0.34]))
+
+
+def test_a_condition_covered_by_a_later_one_is_refused_naming_the_overlap():
+    """A ``where`` condition whose faces a later condition of the same boundary takes over acts
+    nowhere: refused in one line that says the last listed applies (it said only "widen
+    where")."""
+    from poromech.errors import ConfigError
+
+    geo = network_geometry()
+    fm = uniform_mesh(comm, BoxGeometry(geo.box, geo.fractures[:1]), 0.25)
+    one = lambda x, t: np.ones(len(x))  # noqa: E731
+    upper = FlowBoundary("left", (0,), "pressure", one, where=lambda x, t: x[:, 2] > 0.5)
+    wider = FlowBoundary("left", (0,), "pressure", one, where=lambda x, t: x[:, 2] > 0.25)
+    right = FlowBoundary("right", (1,), "pressure", lambda x, t: np.zeros(len(x)))
+    props = properties(fm, np.eye(3), aperture=1e-3, kn=[1.0], kt=[1.0])
+    with pytest.raises(ConfigError, match="flow.boundary_conditions.0.*the last listed applies"):
+        DarcyProblem(fm, props, [upper, wider, right], solver="direct")
+    pb = DarcyProblem(fm, props, [wider, upper, right], solver="direct")  # nested the other way
+    pb.destroy()

@@ -241,7 +241,9 @@ class DarcyProblem:
                 raise ConfigError(
                     f"'flow.boundary_conditions.{i}' (boundary {bc.name}, restricted by where) "
                     "selects no boundary face or fracture end of the mesh (where is tested at "
-                    "face midpoints and nodes): widen where, or refine the mesh there")
+                    "face midpoints and nodes), or a condition listed after it covers all it "
+                    "selects (the last listed applies): widen where, refine the mesh there, or "
+                    "remove the overlap")
 
     def set_properties(self, properties: FlowProperties) -> None:
         """Replace all coefficients (collective); matrix values are recomputed at the next solve."""

@@ -423,7 +423,8 @@ class FlowBoundaryCondition:
         default=None,
         metadata=doc("restrict the condition to the boundary faces whose centre makes this "
                      "expression nonzero (e.g. \"z > 90\"); the rest of the boundary is "
-                     "impervious unless another condition with a where covers it"),
+                     "impervious unless another condition with a where covers it. Where two "
+                     "conditions of a boundary cover a face, the one listed last applies"),
     )
     fracture_ends: Literal["inherit", "no_flow"] = field(
         default="inherit",
