@@ -261,9 +261,9 @@ class Run:
         """
         summary = self.summary
         if meta["mesh"] != summary["mesh"] or meta.get("dofs") != summary.get("dofs"):
-            raise ValueError(f"the checkpoint was written for another mesh ({meta['mesh']}, "
-                             f"{meta.get('dofs')} dofs) than this one ({summary['mesh']}, "
-                             f"{summary.get('dofs')} dofs)")
+            raise ConfigError(f"the checkpoint was written for another mesh ({meta['mesh']}, "
+                              f"{meta.get('dofs')} dofs) than this one ({summary['mesh']}, "
+                              f"{summary.get('dofs')} dofs)")
         done, t = int(meta["steps_done"]), float(meta["time"])
         times = step_times(self.scene)
         if done > 0 and (done > len(times)
