@@ -251,11 +251,11 @@ def test_network_p2_p_multigrid_matches_the_direct_solve(formulation, tmp_path):
     1,054 and 518: the 3 × 3 blocks hold the contact terms of inclined fractures)."""
     p2 = [c for c in COARSE if not c.startswith("degree")] + [
         "degree=2", "time.final=2", "time.steps=2", f"contact.formulation={formulation}"]
+    from poromech.errors import SolverError
+
     runs = {}
     for name, extra in (("direct", ["solver.linear_solver=direct"]),
-                        ("pmg", ["solver.linear_solver=iterative"]),
-                        ("jacobi", ["solver.linear_solver=iterative",
-                                    "solver.petsc={mg_levels_pc_type: jacobi}"])):
+                        ("pmg", ["solver.linear_solver=iterative"])):
         run_scene(load_scene(NETWORK, p2 + extra), tmp_path / name)
         summary = json.loads((tmp_path / name / "summary.json").read_text())
         assert summary["status"] == "converged"
@@ -263,8 +263,17 @@ def test_network_p2_p_multigrid_matches_the_direct_solve(formulation, tmp_path):
     solves = runs["pmg"][0]["solves"]
     assert all(s["stale_solves"] == 0 for s in solves)
     assert sum(s["factorizations"] for s in solves) >= sum(s["iterations"] for s in solves) - 1
-    krylov = {k: sum(s["linear_iterations"] for s in runs[k][0]["solves"])
-              for k in ("pmg", "jacobi")}
+    krylov = {"pmg": sum(s["linear_iterations"] for s in solves)}
+    # the point-Jacobi baseline: its GMRES may also break down (once in a full suite on this
+    # mesh, round-off picking another Newton path): then it counts as infinitely many iterations
+    try:
+        run_scene(load_scene(NETWORK, p2 + ["solver.linear_solver=iterative",
+                                            "solver.petsc={mg_levels_pc_type: jacobi}"]),
+                  tmp_path / "jacobi")
+        summary = json.loads((tmp_path / "jacobi" / "summary.json").read_text())
+        krylov["jacobi"] = sum(s["linear_iterations"] for s in summary["solves"])
+    except SolverError:
+        krylov["jacobi"] = np.inf
     assert krylov["pmg"] <= 25 * sum(s["iterations"] for s in solves)
     assert krylov["pmg"] < 0.6 * krylov["jacobi"]
     assert runs["pmg"][0]["linear_solver"]["p_multigrid"]["fine_smoother"] == "pbjacobi"
