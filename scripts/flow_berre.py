@@ -314,11 +314,8 @@ def plot_spread(cases: list[Case], rows: list[list], participants: list[list]) -
         methods = dict.fromkeys(m for c, m, _, n, *_, same in participants
                                 if c == case.name and not same and n > 0)
         for method in methods:
-            pts = sorted((n, e) for c, m, _, n, _, _, e, _ in participants
-                         if c == case.name and m == method and n > 0)
-            if not pts:
-                continue
-            n, e = np.array(pts).T
+            n, e = np.array(sorted((n, e) for c, m, _, n, _, _, e, _ in participants
+                                   if c == case.name and m == method and n > 0)).T
             hfv = method == "UNICE_UNIGE-HFV_Disc"
             ax.loglog(n, e, "s--" if hfv else ".-", color="tab:blue" if hfv else "0.65",
                       lw=1.4 if hfv else 0.8, ms=5 if hfv else 4, zorder=3 if hfv else 2,

@@ -230,10 +230,11 @@ def _positive_definite_3d(k: list[np.ndarray]) -> np.ndarray:
         xx, xy, xz, yy, yz, zz = k
         T = np.stack([np.stack([xx, xy, xz], -1), np.stack([xy, yy, yz], -1),
                       np.stack([xz, yz, zz], -1)], -2)
-    ok = np.isfinite(T).all(axis=(1, 2))
-    ok[ok] = np.abs(T[ok]).max(axis=(1, 2)) > 0  # a zero tensor is not positive definite
+    scale = np.zeros(n)
+    finite = np.isfinite(T).all(axis=(1, 2))
+    scale[finite] = np.abs(T[finite]).max(axis=(1, 2))
+    ok = scale > 0  # finite and not zero (a zero tensor is not positive definite)
     out = np.zeros(n, dtype=bool)
     if ok.any():
-        scale = np.abs(T[ok]).max(axis=(1, 2))
-        out[ok] = np.linalg.eigvalsh(T[ok] / scale[:, None, None]).min(axis=1) > 1e-14
+        out[ok] = np.linalg.eigvalsh(T[ok] / scale[ok, None, None]).min(axis=1) > 1e-14
     return out
