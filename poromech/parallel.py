@@ -48,6 +48,8 @@ def on_root[T](comm: MPI.Comm, fn: Callable[..., T], *args: Any, **kwargs: Any) 
             outcome = (True, fn(*args, **kwargs))
         except Exception as err:
             outcome = (False, _portable(err))
+        except SystemExit as stop:  # a library that exits must not leave the other ranks waiting
+            outcome = (False, RuntimeError(f"{fn.__name__} exited (status {stop.code})"))
         try:
             pickle.dumps(outcome)
         except Exception as err:

@@ -25,6 +25,7 @@ solver read (a misspelled name, or an option for a solver this scene does not bu
 from __future__ import annotations
 
 import logging
+import math
 import re
 from collections.abc import Mapping
 
@@ -161,6 +162,7 @@ def _check_type(name: str, value, where: str) -> None:
 #: Options whose value is a number (name endings): PETSc refuses another value only when the
 #: solver reads it, after meshing and without naming the option.
 _REAL = re.compile(r"(^|_)(rtol|atol|stol|divtol|dtol|threshold|damping)$")
+_TOLERANCE = re.compile(r"(^|_)(rtol|atol|stol|divtol|dtol)$")
 _INTEGER = re.compile(r"(^|_)(max_it|max_funcs|restart|lag_jacobian|lag_preconditioner)$")
 
 
@@ -175,6 +177,11 @@ def _check_number(name: str, value, where: str) -> None:
     except ValueError:
         kind = "an integer" if integer else "a number"
         raise PetscOptionError(f"{where} = {value!r} needs {kind}") from None
+    if not integer and not all(math.isfinite(float(v)) for v in text.split(",")):
+        raise PetscOptionError(f"{where} = {value!r} needs a finite number")
+    if not integer and number < 0 and _TOLERANCE.search(name):
+        raise PetscOptionError(f"{where} = {value!r} needs a number >= 0 (PETSc would take a "
+                               "negative one as its default: leave the option out for that)")
     if integer and number < 0 and not name.endswith(("lag_jacobian", "lag_preconditioner")):
         raise PetscOptionError(f"{where} = {value!r} needs a non-negative integer")
 

@@ -44,6 +44,7 @@ def _error(raw) -> str:
         ({"contact__friction": "tresca"}, ["contact.slip_bound", "tresca"]),
         ({"mesh__size": 0}, ["mesh.size", "> 0"]),
         ({"mesh__refinement": -1}, ["mesh.refinement", ">= 0"]),
+        ({"time": {"final": 1.0, "steps": 10**9}}, ["time.steps", "1000000000", "<= 1000000"]),
         ({"boundary_conditions": [{"boundary": "top", "displacement": [0, 0]},
                                   {"boundary": "roof", "displacement": [0, 0]}]},
          ["boundary_conditions.1.boundary", "roof", "bottom"]),

@@ -196,13 +196,24 @@ def test_petsc_option_checks():
     # numbers are numbers, before meshing (PETSc said "error 63" after it, naming no option)
     for name, value, kind in (("mech_ksp_rtol", "abc", "a number"),
                               ("mech_ksp_max_it", "1.5", "an integer"),
-                              ("coupling_snes_max_it", "-5", "a non-negative integer")):
+                              ("coupling_snes_max_it", "-5", "a non-negative integer"),
+                              # nan and inf made PETSc fail (error 63) after meshing; a
+                              # negative tolerance was silently PETSc's default
+                              ("mech_ksp_rtol", "nan", "a finite number"),
+                              ("flow_ksp_divtol", "inf", "a finite number"),
+                              ("mech_pc_gamg_threshold", "0.01,-inf", "a finite number"),
+                              ("mech_snes_atol", "-1", "a number >= 0")):
         with pytest.raises(PetscOptionError) as caught:
             check_petsc_options({name: value})
         assert f"'-{name}' = '{value}' needs {kind}" in str(caught.value)
     check_petsc_options({"mech_ksp_rtol": "1e-8", "mech_ksp_max_it": "50",
                          "mech_snes_lag_jacobian": "-2", "mech_ksp_gmres_restart": "100",
                          "mech_pc_gamg_threshold": "0.01,0.005"})
+    check_petsc_options({"mech_pc_gamg_threshold": "-1"})  # GAMG: keep every entry
+    scene = scene_from_dict(mechanics_scene(solver={"petsc": {"snes_rtol": float("nan")}}))
+    with pytest.raises(PetscOptionError, match=r"scene key 'solver\.petsc\.snes_rtol' = nan "
+                                               "needs a finite number"):
+        check_petsc_options({}, scene)
     # the examples are types this PETSc has (it has no hypre; they listed it)
     with pytest.raises(PetscOptionError, match=r"\(e\.g\. lu, cholesky, gamg, jacobi"):
         check_petsc_options({"mech_pc_type": "hypre"})
@@ -336,6 +347,11 @@ def test_meshes_too_large_for_memory(tmp_path, capsys):
     refused(capsys, "validate", "six_fractures_mechanics", "--set",
             "mesh.zones=[{center: [1, 0.5], radius: 0.4, size: 1e-4, region: ball}]",
             fragments=["mesh.zones down to size 0.0001", "GB", "--force"])
+    # sizes whose square or cube underflows to 0: still the refusal, in 2D and 3D
+    refused(capsys, "validate", "six_fractures_mechanics", "--set", "mesh.size=1e-300",
+            fragments=["mesh.size = 1e-300", "~inf cells", "~inf GB", "--force"])
+    refused(capsys, "validate", "network3d", "--set", "mesh.fracture_size=1e-120",
+            fragments=["~inf cells", "~inf GB", "--force"])
     assert not (tmp_path / "r").exists()
     assert main(["validate", "six_fractures_mechanics", "--set", "mesh.refinement=7",
                  "--force"]) == 0

@@ -537,6 +537,11 @@ def test_second_order_geo_and_meshio_refusals(tmp_path):
     bad.write_text("1 2 3\n")
     msg = error(mesh_scene(bad, ()))
     assert "geometry.mesh.file" in msg and "meshio cannot read it" in msg
+    # a known extension with a body meshio cannot parse: meshio prints and calls sys.exit
+    junk = tmp_path / "junk.vtk"
+    junk.write_text("hello\n")
+    msg = error(mesh_scene(junk, ()))
+    assert "meshio cannot read it: Illegal VTK header" in msg, msg
     syntax = tmp_path / "s.geo"
     syntax.write_text("Point(1) = {0, 0, 0;\n")
     assert "gmsh cannot read it" in error(mesh_scene(syntax, ()))

@@ -70,3 +70,12 @@ def test_two_ranks_equal_one_rank(formulation, degree):
     assert result["iterations"] == [r["iterations"] for r in records]
     scale = np.abs(vals).max(axis=0)
     assert np.all(np.abs(par - vals).max(axis=0) <= 1e-8 * scale)
+
+
+def test_a_library_that_exits_on_rank_0_raises_on_every_rank():
+    """A library calling sys.exit (meshio does) becomes an error, not a rank that left."""
+    import sys
+
+    from poromech.parallel import on_root
+    with pytest.raises(RuntimeError, match=r"exit exited \(status 3\)"):
+        on_root(MPI.COMM_WORLD, sys.exit, 3)

@@ -24,6 +24,8 @@ Serial, no MPI: call on one rank.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import logging
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -181,10 +183,15 @@ def _read_meshio(path: Path) -> RawMesh:
     """Read a mesh with meshio; named groups from its cell sets or gmsh physical names."""
     import meshio
 
+    said = io.StringIO()
     try:
-        mesh = meshio.read(str(path))
-    except Exception as err:  # noqa: BLE001  (meshio raises many kinds)
-        text = " ".join(str(err).split()) or type(err).__name__
+        # meshio prints why a reader failed and then calls sys.exit: keep both in the error
+        with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
+            mesh = meshio.read(str(path))
+    except (Exception, SystemExit) as err:  # noqa: BLE001  (meshio raises many kinds)
+        printed = [line.strip() for line in said.getvalue().splitlines() if line.strip()]
+        text = printed[0] if printed and isinstance(err, SystemExit) else str(err)
+        text = " ".join(text.replace(str(path), path.name).split()) or type(err).__name__
         raise MeshFileError("file", f"meshio cannot read it: {text} (allowed: .geo, .msh, or a "
                             "format meshio reads, with named line groups)") from None
     x = np.asarray(mesh.points, dtype=np.float64)

@@ -306,8 +306,11 @@ def _direct_bytes(n: float) -> float:
 def estimate_run(scene, geo: PlaneGeometry, ranks: int = 1) -> RunEstimate:
     """Cells, unknowns and peak memory of a scene on ``ranks`` ranks (local, no meshing)."""
     m = mesh_sizes(scene)
-    cells = estimate_cells(geo, m.size, m.fracture_size, m.tip_size, m.transition, m.refinement,
-                           m.zones)
+    try:
+        cells = estimate_cells(geo, m.size, m.fracture_size, m.tip_size, m.transition,
+                               m.refinement, m.zones)
+    except (ZeroDivisionError, OverflowError):  # a size whose square or cube is below 1e-308
+        cells = math.inf
     if geo.dim == 3:
         return _estimate_3d(scene, cells, ranks)
     memory = ranks * BASE_BYTES + MESH_BYTES_PER_CELL * cells
@@ -331,8 +334,8 @@ def _estimate_3d(scene, cells: float, ranks: int) -> RunEstimate:
         solve = DIRECT_BYTES_3D * unknowns ** (4 / 3)
     else:
         solve = ITERATIVE_BYTES_3D * unknowns
-    memory = (ranks * BASE_BYTES + max(MESH_BYTES_PER_CELL_3D * cells, solve / ranks)
-              + solve * (ranks - 1) / ranks)
+    others = solve * (ranks - 1) / ranks if ranks > 1 else 0.0  # (inf * 0 would be nan)
+    memory = ranks * BASE_BYTES + max(MESH_BYTES_PER_CELL_3D * cells, solve / ranks) + others
     return RunEstimate(cells, unknowns, memory)
 
 

@@ -340,7 +340,8 @@ class TimeSpec:
 
     final: float | None = field(default=None, metadata=doc("final time T (uniform steps)", "s",
                                                              gt=0))
-    steps: int | None = field(default=None, metadata=doc("number of uniform steps", "", min=1))
+    steps: int | None = field(default=None,
+                              metadata=doc("number of uniform steps", "", min=1, max=1_000_000))
     times: tuple[float, ...] | None = field(
         default=None,
         metadata=doc("listed step end times t_1 < t_2 < ... (instead of final/steps)", "s", gt=0),
