@@ -54,6 +54,17 @@ def _error(raw) -> str:
          ["'boundary_conditions' = {", "must be a list: mechanical boundary conditions"]),
         ({"boundary_conditions": [{"boundary": "top", "displacement": [0, 0],
                                    "traction": [0, 0]}]}, ["exactly one"]),
+        # the last displacement won; a traction on an imposed component was ignored
+        ({"boundary_conditions": [{"boundary": "bottom", "displacement": [0, 0]},
+                                  {"boundary": "top", "displacement": [None, -1e-3]},
+                                  {"boundary": "top", "displacement": [0, -2e-3]}]},
+         ["'boundary_conditions.2.displacement.1' imposes u_y on boundary 'top'",
+          "boundary_conditions.1 already imposes"]),
+        ({"boundary_conditions": [{"boundary": "bottom", "displacement": [0, 0]},
+                                  {"boundary": "top", "displacement": [None, -1e-3]},
+                                  {"boundary": "top", "traction": ["1e6*x", "1e6"]}]},
+         ["'boundary_conditions.2.traction.1' = '1e6' would have no effect",
+          "boundary_conditions.1 imposes u_y on boundary 'top'"]),
     ],
 )
 def test_invalid_values(overrides, fragments):
@@ -212,3 +223,15 @@ def test_every_documented_key_is_accepted():
 
     assert not accepted("fracture_pressure.source") and not accepted("contact.nonsense")
     assert [k for k in keys if not accepted(k)] == []
+
+
+def test_conditions_that_share_a_boundary_on_other_components():
+    """A roller loaded along its free direction, and two tractions on one boundary (they add)."""
+    raw = mechanics_scene(boundary_conditions=[
+        {"boundary": "bottom", "displacement": [0, 0]},
+        {"boundary": "top", "displacement": [None, -1e-3]},
+        {"boundary": "top", "traction": ["1e6*x", 0]},
+        {"boundary": "right", "traction": [-1e6, 0]},
+        {"boundary": "right", "traction": [-2e6, 0]}])
+    bcs = scene_from_dict(raw).boundary_conditions
+    assert [bc.boundary for bc in bcs] == ["bottom", "top", "top", "right", "right"]

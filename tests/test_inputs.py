@@ -141,6 +141,11 @@ def test_malformed_expressions(source, fragment):
                                      {"boundary": "right", "pressure": 2e5}]),
      "flow.boundary_conditions.0.pressure"),
     (flow_scene(aperture="where(x > 0.6, -1e-4, 1e-4)"), "flow.aperture"),
+    # a where of nan selected its faces without a word (nan != 0)
+    (flow_scene(boundary_conditions=[{"boundary": "left", "pressure": 1e5},
+                                     {"boundary": "right", "pressure": 2e5,
+                                      "where": "sqrt(y - 0.5)"}]),
+     "flow.boundary_conditions.1.where"),
 ])
 def test_data_not_finite_or_out_of_range_where_used(raw, key):
     with pytest.raises(ConfigError) as info:
@@ -162,6 +167,23 @@ def test_field_invalid_only_outside_a_nonconvex_domain_is_accepted():
                                   "boundary_names": {"bottom": [0], "top": [2, 4]}}}
     raw["material"]["young"] = "where((x > 1.01) and (y > 1.01), -1, 1e9)"
     raw["boundary_conditions"][1]["displacement"] = [0.0, -0.001]
+    scene_from_dict(raw)
+
+
+@pytest.mark.parametrize(("names", "fragment"), [
+    # an edge in two names kept the last; 'edge3' on edge 1 also answered for edge 3
+    ({"bottom": [0], "top": [2, 4], "lid": [4]}, "edge 4 is already named 'top'"),
+    ({"bottom": [0], "top": [2], "edge3": [1]}, "'edge3' is also the default name of edge 3"),
+])
+def test_boundary_names_that_clash(names, fragment):
+    raw = mechanics_scene()
+    raw["geometry"] = {"domain": {"polygon": [[0, 0], [2, 0], [2, 1], [1, 1], [1, 2], [0, 2]],
+                                  "boundary_names": names}}
+    with pytest.raises(ConfigError, match="geometry.domain.boundary_names") as info:
+        scene_from_dict(raw)
+    assert fragment in str(info.value), info.value
+    names = {"bottom": [0], "top": [2], "edge3": [1, 3]}  # renaming into a default: its own edge
+    raw["geometry"]["domain"]["boundary_names"] = names
     scene_from_dict(raw)
 
 
@@ -665,3 +687,18 @@ def test_restart_with_other_time_steps_is_refused(tmp_path, capsys):
     raw["mesh"]["size"] = 3.0 * raw["mesh"]["size"]  # another mesh: one line, exit 2 (was 1)
     stored.write_text(yaml.safe_dump(raw))
     refused(capsys, "run", "--restart", out, fragments=["written for another mesh"])
+
+
+@pytest.mark.parametrize(("name", "fragment"), [
+    ("e", "would hide the variable, constant or function 'e'"),
+    ("pi", "would hide"), ("sqrt", "would hide"), ("t", "would hide"),
+    ("lambda", "not a Python keyword"), (None, "'parameters.None' is not a usable name"),
+    ("2a", "not a usable name"),
+])
+def test_parameter_names_that_cannot_be_used(name, fragment):
+    """A parameter named e or pi silently replaced the constant in every expression."""
+    raw = mechanics_scene()
+    raw["parameters"] = {name: 1.0}
+    with pytest.raises(ConfigError, match="scene key 'parameters") as info:
+        scene_from_dict(raw)
+    assert fragment in str(info.value), info.value

@@ -87,6 +87,7 @@ def _check_mechanics(scene: Scene, geo: PlaneGeometry) -> None:
         if bc.displacement is not None:
             for k, comp in enumerate(bc.displacement):
                 fixed[k] |= comp is not None
+    _check_conditions_per_boundary(scene.boundary_conditions)
     check_components("material.body_force", scene.material.body_force, dim)
     if not all(fixed):
         comp = "xyz"[fixed.index(False)]
@@ -106,6 +107,36 @@ def _check_mechanics(scene: Scene, geo: PlaneGeometry) -> None:
         raise ConfigError(
             f"scene key 'solver.petsc.pc_type' = 'mg' (the p-multigrid, P1 as the coarse level "
             f"of P2) needs degree 2, not {scene.degree}: use gamg, or degree 2")
+
+
+def _check_conditions_per_boundary(conditions) -> None:
+    """One displacement value per component and boundary, and no traction that could not act.
+
+    A displacement component given twice on one boundary kept the last one; a traction
+    component on a boundary whose displacement component is imposed had no effect. Tractions
+    on one boundary add up; a displacement and a traction may share a boundary on different
+    components (a roller loaded along its free direction).
+    """
+    imposed: dict[tuple[str, int], int] = {}
+    for i, bc in enumerate(conditions):
+        for k, comp in enumerate(bc.displacement or ()):
+            if comp is None:
+                continue
+            if (bc.boundary, k) in imposed:
+                raise ConfigError(
+                    f"scene key 'boundary_conditions.{i}.displacement.{k}' imposes u_{'xyz'[k]} "
+                    f"on boundary {bc.boundary!r}, which boundary_conditions."
+                    f"{imposed[bc.boundary, k]} already imposes (allowed: one value per "
+                    "component; null leaves a component free)")
+            imposed[bc.boundary, k] = i
+    for i, bc in enumerate(conditions):
+        for k, comp in enumerate(bc.traction or ()):
+            if (bc.boundary, k) in imposed and not (comp.is_constant and comp.value() == 0.0):
+                raise ConfigError(
+                    f"scene key 'boundary_conditions.{i}.traction.{k}' = "
+                    f"{format_value(comp.source)} would have no effect: boundary_conditions."
+                    f"{imposed[bc.boundary, k]} imposes u_{'xyz'[k]} on boundary "
+                    f"{bc.boundary!r} (allowed: 0, or null in that displacement)")
 
 
 def _check_mechanics_data(scene: Scene, geo: PlaneGeometry, times) -> None:
@@ -260,6 +291,9 @@ def _check_flow_boundaries(scene: Scene, geo: PlaneGeometry) -> None:
             if bc.where.depends_on_time:
                 raise ConfigError(f"scene key '{path}.where' = {format_value(bc.where.source)} "
                                   "depends on t (allowed: an expression in x, y, z)")
+            # nan != 0 would select a face without a word
+            check_expression(bc.where, points, f"{path}.where", None, [0.0],
+                             f"a point of boundary '{bc.boundary}'")
             if not np.any(bc.where(points, 0.0) != 0):
                 raise ConfigError(f"scene key '{path}.where' = {format_value(bc.where.source)} "
                                   f"is zero everywhere on boundary {bc.boundary!r} (allowed: "

@@ -17,7 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["Expression", "ExpressionError", "compile_expression", "function_signatures"]
+__all__ = ["Expression", "ExpressionError", "compile_expression", "function_signatures",
+           "reserved_names"]
 
 #: Variables every expression may use: coordinates (m) and time (s); ``z`` is 0 in 2D scenes.
 VARIABLES = ("x", "y", "z", "t")
@@ -101,6 +102,11 @@ _SIGNATURES = {
     "mandel_p": "mandel_p(x, t, a, F, E, nu, b, M, k)",
     "mandel_uz": "mandel_uz(z, t, a, F, E, nu, b, M, k)",
 }
+
+
+def reserved_names() -> frozenset[str]:
+    """Names a scene parameter may not take: the variables, constants and functions."""
+    return frozenset(VARIABLES) | frozenset(_CONSTANTS) | frozenset(_FUNCTIONS)
 
 
 def function_signatures() -> list[str]:

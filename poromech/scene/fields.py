@@ -188,6 +188,9 @@ def _flow_checks(scene: Scene, fm: FracturedMesh, p: _Points, times) -> Iterator
             pts.append(_on_edges(p.face_ends, fm.geometry, edges))
         pts = np.concatenate(pts)
         if bc.where is not None:
+            yield lambda i=i, pts=pts, bc=bc: check_expression(
+                bc.where, pts, f"flow.boundary_conditions.{i}.where", None, [0.0],
+                f"a point of boundary '{bc.boundary}'")  # before a nan selects its face
             pts = pts[np.asarray(bc.where(pts, 0.0)) != 0]
         for kind in ("pressure", "flux"):
             yield lambda i=i, kind=kind, pts=pts, bc=bc: check_expression(

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib.resources
+import re
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -96,13 +97,24 @@ def check_domain(scene: Scene) -> None:
             raise ConfigError("scene key 'geometry.domain.boundary_names' is for polygons only")
     else:
         n = len(dom.polygon)
+        named: dict[int, str] = {}
         for name, edges in dom.boundary_names.items():
+            key = f"scene key 'geometry.domain.boundary_names.{name}' = {list(edges)}"
             for e in edges:
                 if not 0 <= e < n:
-                    raise ConfigError(
-                        f"scene key 'geometry.domain.boundary_names.{name}' = {list(edges)}: "
-                        f"edge {e} does not exist (0..{n - 1})"
-                    )
+                    raise ConfigError(f"{key}: edge {e} does not exist (0..{n - 1})")
+                if e in named:
+                    raise ConfigError(f"{key}: edge {e} is already named {named[e]!r} (allowed: "
+                                      "one name per edge)")
+                named[e] = name
+        for name, edges in dom.boundary_names.items():
+            default = re.fullmatch(r"edge(\d+)", str(name))
+            k = int(default[1]) if default else -1
+            if 0 <= k < n and k not in named:
+                raise ConfigError(
+                    f"scene key 'geometry.domain.boundary_names.{name}' = {list(edges)}: "
+                    f"{name!r} is also the default name of edge {k}, which would answer to it "
+                    "too (allowed: another name, or name that edge as well)")
     _check_fracture_kinds(scene, dom.box is not None)
     if scene.geometry.surfaces and dom.box is None:
         raise ConfigError("scene key 'geometry.surfaces' is for a box (3D) only: in 2D the mesh "

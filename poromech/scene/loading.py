@@ -9,6 +9,7 @@ whose message is one line naming the key, the value and what is allowed.
 from __future__ import annotations
 
 import importlib.resources
+import keyword
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -29,6 +30,7 @@ from poromech.scene.geometry import (
     read_geometry_files,
     scene_geometry,
 )
+from poromech.scene.expressions import reserved_names
 from poromech.scene.schema import Scene
 from poromech.scene.usage import check_keys_used
 
@@ -278,11 +280,15 @@ def scene_from_dict(raw: Mapping) -> Scene:
     params = raw.get("parameters", {}) or {}
     if not isinstance(params, dict):
         raise ConfigError(f"scene key 'parameters' = {format_value(params)} must be a mapping")
+    for name in params:
+        if not isinstance(name, str) or not name.isidentifier() or keyword.iskeyword(name):
+            raise ConfigError(f"scene key 'parameters.{name}' is not a usable name (allowed: a "
+                              "name of letters, digits and _, not a Python keyword)")
+        if name in reserved_names():
+            raise ConfigError(f"scene key 'parameters.{name}' would hide the variable, constant "
+                              f"or function {name!r} of expressions (allowed: another name)")
     builder = Builder({})
-    numeric = {str(k): builder.build(v, float, f"parameters.{k}") for k, v in params.items()}
-    for name in numeric:
-        if name in ("x", "y", "z", "t") or not name.isidentifier():
-            raise ConfigError(f"scene key 'parameters.{name}' is not a usable name")
+    numeric = {k: builder.build(v, float, f"parameters.{k}") for k, v in params.items()}
     scene = Builder(numeric).dataclass(raw, Scene, "")
     check_name("name", scene.name)
     if scene.geometry is None:

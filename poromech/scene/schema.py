@@ -323,10 +323,13 @@ class BoundaryCondition:
                                        "box: left, right, front, back, bottom, top)"))
     displacement: tuple[Expr | None, ...] | None = field(
         default=None, metadata=doc("imposed [u_x, u_y] (3D: [u_x, u_y, u_z]); null leaves a "
-                                   "component free", "m")
+                                   "component free; each component at most once per boundary",
+                                   "m")
     )
     traction: tuple[Expr, ...] | None = field(
-        default=None, metadata=doc("imposed traction [t_x, t_y] (3D: [t_x, t_y, t_z])", "Pa")
+        default=None, metadata=doc("imposed traction [t_x, t_y] (3D: [t_x, t_y, t_z]); the "
+                                   "tractions on one boundary add up; a component whose "
+                                   "displacement is imposed there must be 0", "Pa")
     )
 
 
