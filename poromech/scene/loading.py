@@ -21,6 +21,7 @@ from poromech.geometry.box import BoxGeometry, check_box_geometry
 from poromech.geometry.plane import GeometryError, check_geometry
 from poromech.scene.builder import Builder, deep_copy, format_value
 from poromech.scene.checks import check_name, check_scene
+from poromech.scene.expressions import reserved_names
 from poromech.scene.geometry import (
     absolute_geometry_paths,
     check_domain,
@@ -30,7 +31,6 @@ from poromech.scene.geometry import (
     read_geometry_files,
     scene_geometry,
 )
-from poromech.scene.expressions import reserved_names
 from poromech.scene.schema import Scene
 from poromech.scene.usage import check_keys_used
 
