@@ -189,7 +189,7 @@ def _load(args, comm):
 def _stored_run(outdir: Path):
     """The scene and mapping stored with the run in ``outdir``, which must have a checkpoint."""
     from poromech.errors import ConfigError
-    from poromech.io.checkpoint import CHECKPOINT
+    from poromech.io.checkpoint import CHECKPOINT, CheckpointError, read_checkpoint_meta
     from poromech.run import SCENE_FILE
     from poromech.scene.loading import load_scene_and_raw
 
@@ -199,6 +199,10 @@ def _stored_run(outdir: Path):
         raise ConfigError(f"--restart {outdir}: the run there wrote no {CHECKPOINT} (a scene "
                           "without time steps, output.checkpoint: false, or a run that stopped "
                           "before its first step): nothing to continue from")
+    try:
+        read_checkpoint_meta(outdir / CHECKPOINT)
+    except CheckpointError as err:
+        raise ConfigError(f"--restart {outdir}: {err}") from None
     return load_scene_and_raw(outdir / SCENE_FILE, ())
 
 
@@ -310,6 +314,8 @@ def _plot(args, petsc_opts: dict, comm) -> int:
         return _end(comm, EXIT_CONFIG, str(err))
     except PlotError as err:
         return _end(comm, EXIT_ERROR, str(err))
+    except (OSError, ValueError) as err:  # a file of the run cut short or edited by hand
+        return _end(comm, EXIT_CONFIG, f"cannot plot {args.outdir}: {' '.join(str(err).split())}")
     for path in paths:
         log.info("wrote %s", path)
     return 0

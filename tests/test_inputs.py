@@ -297,6 +297,15 @@ def test_restart_of_a_folder_without_a_run_or_a_checkpoint(tmp_path, capsys):
     refused(capsys, "run", "--restart", out, fragments=["wrote no checkpoint.h5"])
     # the refused restart leaves the finished run's record as it was
     assert json.loads((out / "summary.json").read_text())["status"] == "converged"
+    # a checkpoint cut short (or another file under its name): h5py's OSError, exit 1, after
+    # meshing; an HDF5 file without poromech's metadata: a KeyError
+    (out / "checkpoint.h5").write_bytes(b"\x89HDF\r\n\x1a\n" + bytes(100))
+    refused(capsys, "run", "--restart", out,
+            fragments=["checkpoint.h5 cannot be read as a poromech checkpoint"])
+    import h5py
+    with h5py.File(out / "checkpoint.h5", "w") as f:
+        f["x"] = [1.0]
+    refused(capsys, "run", "--restart", out, fragments=["poromech checkpoint ("])
 
 
 def test_a_petsc_error_is_one_line_with_its_routine_and_messages():

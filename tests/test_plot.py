@@ -241,3 +241,25 @@ def test_plot_of_a_run_without_fractures_draws_the_deformed_mesh(tmp_path, backe
     assert [p.name for p in written] == ["deformed_t0.png"]
     with Image.open(written[0]) as im:
         assert len(im.convert("RGB").getcolors(maxcolors=1 << 20)) > 20
+
+
+@pytest.mark.parametrize(("name", "cut", "fragment"), [
+    ("summary.json", 5, "summary.json cannot be read as JSON"),
+    ("flow.h5", 300, "flow.h5 cannot be read as HDF5 (Unable"),
+    ("flow.xdmf", 20, "flow.xdmf cannot be read as XML"),
+])
+def test_plot_of_a_damaged_run_is_refused_in_one_line(runs, tmp_path, capsys, name, cut,
+                                                      fragment):
+    """A file of the run cut short gave a raw exception (exit 1): one line naming it, exit 2."""
+    import shutil
+
+    from poromech.cli import main
+
+    damaged = tmp_path / "run"
+    shutil.copytree(runs["flow"], damaged)
+    with open(damaged / name, "r+b") as f:
+        f.truncate(cut)
+    assert main(["plot", str(damaged), "-o", str(tmp_path / "png"),
+                 "--backend", "matplotlib"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert f"cannot plot {damaged}: " in err and fragment in err and "\n" not in err, err

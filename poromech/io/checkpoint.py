@@ -35,11 +35,13 @@ from poromech.physics import Keyed
 
 __all__ = [
     "CHECKPOINT",
+    "CheckpointError",
     "Keyed",
     "StoredRows",
     "cell_dof_rows",
     "face_dof_rows",
     "load_checkpoint",
+    "read_checkpoint_meta",
     "save_checkpoint",
     "scalar_row",
     "set_cell_dof_rows",
@@ -91,11 +93,30 @@ class StoredRows:
         return out[inverse].reshape(index.shape + out.shape[1:])
 
 
+class CheckpointError(ValueError):
+    """A checkpoint file that cannot be read; the message is one line naming it."""
+
+
+def read_checkpoint_meta(path: Path) -> tuple[dict, list[str]]:
+    """The metadata and the array names of the checkpoint file ``path`` (local).
+
+    Raises:
+        CheckpointError: The file is not an HDF5 file with poromech's metadata (truncated,
+            overwritten, or another file).
+    """
+    try:
+        with h5py.File(path, "r") as f:
+            return json.loads(f.attrs["meta"]), list(f.keys())
+    except (OSError, KeyError, ValueError) as err:  # h5py, a missing attribute, bad JSON
+        why = " ".join(str(err).split()) or type(err).__name__
+        raise CheckpointError(f"{path} cannot be read as a poromech checkpoint ({why})") from None
+
+
 def load_checkpoint(comm: MPI.Comm, outdir: Path) -> tuple[dict, dict[str, StoredRows]]:
     """The metadata and the arrays of a checkpoint, read by rows on demand (on every rank)."""
     path = Path(outdir) / CHECKPOINT
-    with h5py.File(path, "r") as f:
-        return json.loads(f.attrs["meta"]), {k: StoredRows(path, k) for k in f.keys()}
+    meta, names = read_checkpoint_meta(path)
+    return meta, {k: StoredRows(path, k) for k in names}
 
 
 def scalar_row(comm: MPI.Comm, value: float) -> Keyed:

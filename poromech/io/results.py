@@ -80,7 +80,11 @@ class Results:
     @property
     def summary(self) -> dict:
         """``summary.json`` (read anew at each access: a running run rewrites it)."""
-        return json.loads((self.path / "summary.json").read_text())
+        path = self.path / "summary.json"
+        try:
+            return json.loads(path.read_text())
+        except ValueError as err:  # a file cut short or edited by hand
+            raise ValueError(f"{path} cannot be read as JSON ({err})") from None
 
     @cached_property
     def scene(self) -> dict | None:

@@ -276,7 +276,7 @@ class Series:
 
     def fields(self, step: int) -> dict[str, npt.NDArray[np.float64]]:
         """All fields of output step ``step`` (negative counts from the end)."""
-        with h5py.File(self.files[step], "r") as f:
+        with _open_h5(self.files[step]) as f:
             return {k: f[k][()] for k in f.keys()}
 
     def at(self, t: float) -> dict[str, npt.NDArray[np.float64]]:
@@ -284,13 +284,27 @@ class Series:
         return self.fields(int(np.argmin(np.abs(np.asarray(self.times) - t))))
 
 
+def _open_h5(path: Path) -> h5py.File:
+    """Open an HDF5 file for reading; an unreadable one raises an OSError that names it."""
+    try:
+        return h5py.File(path, "r")
+    except OSError as err:
+        if isinstance(err, FileNotFoundError):
+            raise
+        raise OSError(f"{path} cannot be read as HDF5 ({' '.join(str(err).split())})") from None
+
+
 def read_series(outdir: Path, stem: str) -> Series:
     """Read back a series written by :class:`XDMFSeries` (serial, any process)."""
     outdir = Path(outdir)
-    with h5py.File(outdir / f"{stem}.h5", "r") as f:
+    with _open_h5(outdir / f"{stem}.h5") as f:
         points, cells = f["mesh/points"][()], f["mesh/cells"][()]
     times, files = [], []
-    for grid in ET.parse(outdir / f"{stem}.xdmf").getroot().iter("Grid"):
+    try:
+        root = ET.parse(outdir / f"{stem}.xdmf").getroot()
+    except ET.ParseError as err:
+        raise ValueError(f"{outdir / f'{stem}.xdmf'} cannot be read as XML ({err})") from None
+    for grid in root.iter("Grid"):
         if grid.get("GridType") != "Uniform":
             continue
         times.append(float(grid.find("Time").get("Value")))
