@@ -583,6 +583,9 @@ def test_scene_keys_with_a_mesh_file(square):
          ["line 3", "starts at (0.31, 0.1), not where its previous segment ends (0.3, 0.1)"]),
         ("fracture,x,y\n,0.1,0.1\n", ["line 2: the fracture name is empty"]),
         ("# only a comment\n", ["is empty"]),
+        # a header only ran without fractures; a binary file was "empty"
+        ("fracture,x,y\n# none yet\n", ["has a header (line 1) and no fracture rows"]),
+        ("\x00\x00\x01\x02\n\x00", ["holds NUL bytes"]),
         ("fracture,x,y\na,0.5,0.5\na,2.5,0.5\n", ["fracture 'a' has point (2.5, 0.5) outside"]),
         ("fracture,x,y\na,-0.5,0.5\na,1.0,0.5\n", ["fracture 'a'", "outside the domain"]),
         ("fracture,x0,y0,x1,y1\na,0.1,0.1,0.1,0.1\n", ["fracture 'a' has a zero-length segment"]),

@@ -55,9 +55,13 @@ def _text(path: Path) -> str:
     if len(data) > MAX_BYTES:
         raise FractureFileError(f"is larger than {MAX_BYTES / 1e6:g} MB")
     try:
-        return data.decode("utf-8-sig")
+        text = data.decode("utf-8-sig")
     except UnicodeDecodeError:
         raise FractureFileError("is not UTF-8 text (allowed: a CSV text file)") from None
+    if "\x00" in text:  # valid UTF-8, but a binary file (csv would call it empty or fail)
+        raise FractureFileError("holds NUL bytes, as a binary file does (allowed: a CSV text "
+                                "file)")
+    return text
 
 
 def _rows(text: str):
@@ -125,6 +129,10 @@ def read_fracture_csv(path: Path) -> Network:
         fractures.setdefault(name, []).append(values)
         lines.setdefault(name, []).append(number)
         last = name
+    if not fractures:
+        raise FractureFileError(f"has a header (line {header_line}) and no fracture rows "
+                                "(allowed: one row per segment or point; a scene without "
+                                "fractures leaves geometry.fractures out)")
     return tuple((name, _polyline(name, rows_, lines[name], layout))
                  for name, rows_ in fractures.items())
 
