@@ -230,7 +230,11 @@ def _run(args, petsc_opts: dict, comm) -> int:
 
     from poromech.errors import OutputError, SolverError
     from poromech.io.outdir import default_output_dir, output_directory
-    from poromech.petsc_options import report_unused_options
+    from poromech.petsc_options import (
+        forget_read_options,
+        report_unused_options,
+        report_unused_scene_options,
+    )
     from poromech.run import run_scene
     from poromech.stepping import Interrupted
 
@@ -243,6 +247,7 @@ def _run(args, petsc_opts: dict, comm) -> int:
     opts = PETSc.Options()
     for k, v in petsc_opts.items():
         opts[k] = v
+    forget_read_options()
     if "log_view" in petsc_opts:
         PETSc.Log.begin()  # options given after PetscInitialize do not start the log
     try:
@@ -261,6 +266,7 @@ def _run(args, petsc_opts: dict, comm) -> int:
                 return 128 + err.signum
             finally:
                 report_unused_options(comm, petsc_opts)
+                report_unused_scene_options(comm, scene, petsc_opts)
     finally:
         for k in petsc_opts:
             if k != "log_view":

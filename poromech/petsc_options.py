@@ -17,9 +17,13 @@ reads the options of set-up: MUMPS' ``mat_mumps_*`` at the first factorization, 
 of ``-snes_mf`` at ``SNESSetUp``), so that two solvers with the same prefix never see each
 other's values.
 
+* a number option (tolerances, iteration counts, thresholds) whose value is not a finite number,
+  and a negative tolerance (PETSc takes it as its default, without a word).
+
 After the run, :func:`report_unused_options` warns once about command-line options that no
 solver read (a misspelled name, or an option for a solver this scene does not build), as PETSc's
-``-options_left`` does.
+``-options_left`` does, and :func:`report_unused_scene_options` about the scene's: each push of
+a :class:`PrefixedOptions` records whether a solver read it.
 """
 
 from __future__ import annotations
@@ -42,7 +46,9 @@ __all__ = [
     "check_petsc_options",
     "ksp_reason_name",
     "reason_name",
+    "forget_read_options",
     "report_unused_options",
+    "report_unused_scene_options",
     "scene_options",
     "unused_options",
 ]
@@ -51,6 +57,11 @@ log = logging.getLogger("poromech")
 
 #: Options prefixes of poromech's solvers (sub-prefixes such as ``mech_stale_`` start with one).
 PREFIXES = ("mech_", "flow_", "coupling_")
+
+#: Options pushed by :class:`PrefixedOptions` (full name) and whether a solver read any of its
+#: pushes: what :func:`report_unused_scene_options` knows of the scene's options.
+_READ: dict[str, bool] = {}
+
 
 class PrefixedOptions:
     """Options of one PETSc object under its prefix, pushed into the database while it reads them.
@@ -79,6 +90,7 @@ class PrefixedOptions:
     def __exit__(self, *exc) -> None:
         db = PETSc.Options()
         for key in self._pushed:
+            _READ[key] = _READ.get(key, False) or db.used(key)
             db.delValue(key)
         self._pushed = []
 
@@ -312,6 +324,33 @@ def report_unused_options(comm: MPI.Comm, names: Mapping[str, str] | None = None
         listed = ", ".join(f"-{k}" for k in unused)
         log.warning("PETSc option(s) %s were not used (misspelled, or for a solver this scene "
                     "does not build)", listed)
+    return unused
+
+
+def forget_read_options() -> None:
+    """Start a new record of the pushed options that were read (at the start of a run)."""
+    _READ.clear()
+
+
+def report_unused_scene_options(comm: MPI.Comm, scene,
+                                cli_options: Mapping[str, str] | None = None) -> list[str]:
+    """Warn once (rank 0) about scene PETSc options no solver read; return their scene keys.
+
+    An option is unused when every push of it went unread, or when it was never pushed because
+    no solver of its prefix was built (a command-line option of the same name wins and is
+    reported by :func:`report_unused_options` instead).
+    """
+    unused = []
+    for prefix, table in scene_options(scene).items():
+        for name, value in table.items():
+            full = prefix + name
+            if value is None or (cli_options and full in cli_options):
+                continue
+            if not _READ.get(full, False):
+                unused.append(f"{_scene_key(prefix)}.{name}")
+    if unused and comm.rank == 0:
+        log.warning("scene key(s) %s were not used by any solver (misspelled, or for a solver "
+                    "this scene does not build)", ", ".join(unused))
     return unused
 
 

@@ -126,9 +126,12 @@ def test_exit_0_flow_run_rerun_and_unused_option(tmp_path):
     """A run exits 0 and warns about an unused PETSc option; a rerun needs --overwrite."""
     out = tmp_path / "flow"
     args = ["run", "flemisch_case2", "-o", str(out), "--set", "output.xdmf=false"]
-    proc = run(args + ["-mech_snes_monitr"], cwd=tmp_path)  # shipped name, outside the repo
+    # a misspelled scene option was not reported at all; one the solver reads is not reported
+    scene_opts = "flow.petsc={ksp_rtol: 1e-10, pc_typ: gamg}"
+    proc = run(args + ["--set", scene_opts, "-mech_snes_monitr"], cwd=tmp_path)  # shipped name
     assert proc.returncode == 0, proc.stderr
     assert "-mech_snes_monitr were not used" in proc.stdout
+    assert "scene key(s) flow.petsc.pc_typ were not used by any solver" in proc.stdout
     assert json.loads((out / "summary.json").read_text())["status"] == "converged"
     (out / "flow_steps").mkdir()  # a stale output of an earlier, longer run
     proc = run(args, cwd=tmp_path)
