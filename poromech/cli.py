@@ -103,9 +103,10 @@ def _parser() -> argparse.ArgumentParser:
     for sp in (run, val):
         sp.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="override a scene key, e.g. --set contact.formulation=mixed")
-        sp.add_argument("-q", "--quiet", action="store_true", help="only warnings and errors")
-        sp.add_argument("-v", "--verbose", action="store_true",
-                        help="debug output, and the traceback of an unexpected error")
+        talk = sp.add_mutually_exclusive_group()
+        talk.add_argument("-q", "--quiet", action="store_true", help="only warnings and errors")
+        talk.add_argument("-v", "--verbose", action="store_true",
+                          help="debug output, and the traceback of an unexpected error")
     sub.add_parser("scenes", help="list the shipped scenes")
     show = sub.add_parser("show", help="print a shipped scene's YAML (to start a scene from)")
     show.add_argument("scene", help="shipped scene name (or a scene file)")

@@ -115,6 +115,12 @@ def test_overrides():
         apply_overrides(raw, ["boundary_conditions.7.boundary=top"])
     with pytest.raises(ConfigError, match="dotted.key=value"):
         apply_overrides(raw, ["degree"])
+    # a key that is not an index was "out of range"; an empty key was "scene key '' unknown"
+    with pytest.raises(ConfigError, match=r"'x' is not an index of a list of \d+ \(allowed"):
+        apply_overrides(raw, ["boundary_conditions.x.boundary=top"])
+    for item in ("=1", "mesh..size=1", "mesh.=1"):
+        with pytest.raises(ConfigError, match="the key has an empty part"):
+            apply_overrides(raw, [item])
 
 
 def test_geometry_by_name_and_default_scene():

@@ -188,6 +188,10 @@ def test_boundary_names_that_clash(names, fragment):
 
 
 # -- overrides -----------------------------------------------------------------------------------
+def test_quiet_and_verbose_together_are_refused(capsys):
+    refused(capsys, "validate", "sneddon", "-q", "-v", fragments=["not allowed with"])
+
+
 def test_set_through_a_scalar(capsys):
     refused(capsys, "validate", ROOT / "configs" / "sneddon.yaml",
             "--set", "boundary_conditions.0.displacement.0.x=1",
@@ -367,6 +371,16 @@ def test_stale_outputs_refused_or_cleared(tmp_path, capsys):
     (out / "summary.json").write_text("x")
     with output_directory(out, clear=False):  # a restart keeps its outputs
         assert (out / "summary.json").exists()
+    # a user's own plots folder is not a run's: --overwrite removed it; next to a run's
+    # summary.json it is what poromech plot wrote
+    mine = tmp_path / "mine"
+    (mine / "plots").mkdir(parents=True)
+    (mine / "plots" / "figure.png").write_text("x")
+    with output_directory(mine, overwrite=True):
+        pass
+    assert (mine / "plots" / "figure.png").exists()
+    (mine / "summary.json").write_text("x")
+    refused(capsys, "run", "sneddon", "-o", mine, fragments=["(plots/, summary.json)"])
 
 
 # -- resources -----------------------------------------------------------------------------------

@@ -90,12 +90,22 @@ def _is_owned(name: str) -> bool:
     return any(fnmatch.fnmatchcase(name, p) for p in OWNED_OUTPUTS)
 
 
+#: Outputs whose name a user's own folder may have too: a run's only next to its ``summary.json``.
+_GENERIC_OUTPUTS = ("plots",)
+
+
 def owned_outputs(path: Path) -> list[Path]:
-    """The entries of ``path`` that a run writes (sorted; empty when ``path`` does not exist)."""
+    """The entries of ``path`` that a run writes (sorted; empty when ``path`` does not exist).
+
+    ``plots`` (written by ``poromech plot``) counts only in the folder of a run, one with a
+    ``summary.json``: a user's own ``plots`` folder elsewhere is not poromech's to remove.
+    """
     path = Path(path)
     if not path.is_dir():
         return []
-    return sorted(p for p in path.iterdir() if _is_owned(p.name))
+    run = (path / "summary.json").is_file()
+    return sorted(p for p in path.iterdir() if _is_owned(p.name)
+                  and (run or p.name not in _GENERIC_OUTPUTS))
 
 
 def clear_outputs(path: Path) -> list[Path]:

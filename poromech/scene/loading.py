@@ -231,6 +231,9 @@ def apply_overrides(raw: dict, overrides: Sequence[str]) -> dict:
         key, text = item.split("=", 1)
         value = parse_yaml(text, f"--set {item!r}: the value")
         parts = key.strip().split(".")
+        if not all(parts):
+            raise ConfigError(f"--set {item!r}: the key has an empty part (allowed: "
+                              "dotted.key=value, e.g. mesh.size=0.1)")
         node: Any = raw
         for i, part in enumerate(parts[:-1]):
             nxt = parts[i + 1]
@@ -247,8 +250,12 @@ def apply_overrides(raw: dict, overrides: Sequence[str]) -> dict:
         _check_container(node, parts[:-1], key)
         if isinstance(node, list):
             idx = int(last) if last.isdigit() else None
-            if idx is None or idx > len(node):
-                raise ConfigError(f"--set {key}: index {last!r} is out of range")
+            if idx is None:
+                raise ConfigError(f"--set {key}: {last!r} is not an index of a list of "
+                                  f"{len(node)} (allowed: 0..{len(node)})")
+            if idx > len(node):
+                raise ConfigError(f"--set {key}: index {last!r} is out of range (allowed: "
+                                  f"0..{len(node)}; {len(node)} appends)")
             if idx == len(node):
                 node.append(value)
             else:
@@ -268,8 +275,13 @@ def _check_container(node: Any, parts: list[str], key: str) -> None:
 
 
 def _list_item(node: list, part: str, key: str):
-    if not part.isdigit() or int(part) >= len(node):
-        raise ConfigError(f"--set {key}: index {part!r} is out of range (list of {len(node)})")
+    allowed = f"allowed: 0..{len(node) - 1}" if node else "the list is empty"
+    if not part.isdigit():
+        raise ConfigError(f"--set {key}: {part!r} is not an index of a list of {len(node)} "
+                          f"({allowed})")
+    if int(part) >= len(node):
+        raise ConfigError(f"--set {key}: index {part!r} is out of range (list of {len(node)}; "
+                          f"{allowed})")
     return node[int(part)]
 
 
