@@ -297,6 +297,24 @@ def test_shipped_network_scene(tmp_path):
     assert np.all(np.isnan(lower["p_f"][lower["x"] < 0.34]))
 
 
+def test_barrier_network_with_a_changing_step_size(tmp_path):
+    """Transient flow through the barrier network with steps of 1, 0.5, 1.5 and 0.2 s: each
+    new step size sets GAMG up anew. Chebyshev's own eigenvalue estimate (GMRES by default)
+    made the preconditioner indefinite: every step after the first failed, with any cut."""
+    from poromech.run import run_scene
+    from poromech.scene.loading import load_scene
+
+    scene = load_scene(ROOT / "configs" / "flow3d_network.yaml",
+                       ["mesh.size=0.2", "mesh.fracture_size=0.08", "output.xdmf=false",
+                        "flow.biot_modulus=1e9", "time={times: [1, 1.5, 3, 3.2], max_cuts: 0}"])
+    summary = run_scene(scene, tmp_path, comm)
+    assert summary["status"] == "converged"
+    solves = summary["flow"]["solves"]
+    assert len(solves) == 4 and all(s["reason"].startswith("CONVERGED") for s in solves)
+    assert max(s["iterations"] for s in solves) < 60
+    assert max(s["mass_balance"]["relative_residual"] for s in solves) < 1e-10
+
+
 def test_a_condition_covered_by_a_later_one_is_refused_naming_the_overlap():
     """A ``where`` condition whose faces a later condition of the same boundary takes over acts
     nowhere: refused in one line that says the last listed applies (it said only "widen
