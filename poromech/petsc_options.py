@@ -340,7 +340,9 @@ def report_unused_scene_options(comm: MPI.Comm, scene,
     no solver of its prefix was built (a command-line option of the same name wins and is
     reported by :func:`report_unused_options` instead).
     """
-    unused = []
+    unused: list[str] = []
+    if not _READ:  # no solver was built (the run stopped before): nothing to tell
+        return unused
     for prefix, table in scene_options(scene).items():
         for name, value in table.items():
             full = prefix + name

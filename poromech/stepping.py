@@ -18,13 +18,15 @@ For every step ``tⁿ⁻¹ → tⁿ`` the loop
    atomically.
 
 A SIGINT or SIGTERM stops the run at the next step boundary, with the completed steps written
-(:class:`Interrupted`, exit status 130 or 143); a second signal ends the process at once.
+(:class:`Interrupted`, exit status 130 or 143), and says so at once on the standard output (a step
+may take minutes); a second signal ends the process at once.
 """
 
 from __future__ import annotations
 
 import logging
 import signal
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import replace
@@ -61,6 +63,12 @@ class _StopFlag:
             signal.signal(signum, signal.SIG_DFL)
             signal.raise_signal(signum)
         self.signum = signum
+        if MPI.COMM_WORLD.rank == 0:  # (mpirun passes the signal to every rank)
+            # a step can take minutes: say that the signal was heard, and how to stop now
+            sys.stdout.write(f"poromech: {signal.Signals(signum).name} received: the run stops "
+                             "after the step being solved, with its outputs complete; a second "
+                             "signal stops it at once\n")
+            sys.stdout.flush()
 
     def install(self) -> None:
         for s in (signal.SIGINT, signal.SIGTERM):

@@ -101,10 +101,13 @@ def test_signal_stops_cleanly_at_a_step_boundary(tmp_path, signum, code):
     proc = start(out, "--set", "time.steps=40")
     wait_for_steps(proc, out, 1)
     proc.send_signal(signum)
-    _, err = proc.communicate(timeout=300)
+    out_text, err = proc.communicate(timeout=300)
     assert proc.returncode == code, err
     lines = [ln for ln in err.splitlines() if ln.strip()]
     assert len(lines) == 1 and signal.Signals(signum).name in lines[0], err
+    # heard at once (a step may take minutes), once
+    assert out_text.count(f"{signal.Signals(signum).name} received: the run stops after the "
+                          "step being solved") == 1, out_text
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"].startswith("interrupted")
     assert check_readable(out) == summary["completed_steps"] < 40
