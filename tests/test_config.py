@@ -58,13 +58,13 @@ def _error(raw) -> str:
         ({"boundary_conditions": [{"boundary": "bottom", "displacement": [0, 0]},
                                   {"boundary": "top", "displacement": [None, -1e-3]},
                                   {"boundary": "top", "displacement": [0, -2e-3]}]},
-         ["'boundary_conditions.2.displacement.1' imposes u_y on boundary 'top'",
+         ["'boundary_conditions.2' imposes u_y (displacement.1) on boundary 'top'",
           "boundary_conditions.1 already imposes"]),
         ({"boundary_conditions": [{"boundary": "bottom", "displacement": [0, 0]},
                                   {"boundary": "top", "displacement": [None, -1e-3]},
                                   {"boundary": "top", "traction": ["1e6*x", "1e6"]}]},
-         ["'boundary_conditions.2.traction.1' = '1e6' would have no effect",
-          "boundary_conditions.1 imposes u_y on boundary 'top'"]),
+         ["'boundary_conditions.2' gives traction.1 = '1e6' on boundary 'top'",
+          "boundary_conditions.1 imposes u_y: it would have no effect"]),
     ],
 )
 def test_invalid_values(overrides, fragments):

@@ -124,8 +124,8 @@ def _check_conditions_per_boundary(conditions) -> None:
                 continue
             if (bc.boundary, k) in imposed:
                 raise ConfigError(
-                    f"scene key 'boundary_conditions.{i}.displacement.{k}' imposes u_{'xyz'[k]} "
-                    f"on boundary {bc.boundary!r}, which boundary_conditions."
+                    f"scene key 'boundary_conditions.{i}' imposes u_{'xyz'[k]} (displacement."
+                    f"{k}) on boundary {bc.boundary!r}, which boundary_conditions."
                     f"{imposed[bc.boundary, k]} already imposes (allowed: one value per "
                     "component; null leaves a component free)")
             imposed[bc.boundary, k] = i
@@ -133,10 +133,10 @@ def _check_conditions_per_boundary(conditions) -> None:
         for k, comp in enumerate(bc.traction or ()):
             if (bc.boundary, k) in imposed and not (comp.is_constant and comp.value() == 0.0):
                 raise ConfigError(
-                    f"scene key 'boundary_conditions.{i}.traction.{k}' = "
-                    f"{format_value(comp.source)} would have no effect: boundary_conditions."
-                    f"{imposed[bc.boundary, k]} imposes u_{'xyz'[k]} on boundary "
-                    f"{bc.boundary!r} (allowed: 0, or null in that displacement)")
+                    f"scene key 'boundary_conditions.{i}' gives traction.{k} = "
+                    f"{format_value(comp.source)} on boundary {bc.boundary!r}, where "
+                    f"boundary_conditions.{imposed[bc.boundary, k]} imposes u_{'xyz'[k]}: it "
+                    "would have no effect (allowed: 0, or null in that displacement)")
 
 
 def _check_mechanics_data(scene: Scene, geo: PlaneGeometry, times) -> None:
