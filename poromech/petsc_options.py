@@ -185,12 +185,13 @@ def _check_number(name: str, value, where: str) -> None:
         return
     text = str(value).strip()
     try:  # a real option may be a list (pc_gamg_threshold: one value per level)
-        number = int(text) if integer else min(float(v) for v in text.split(","))
+        values = [int(text)] if integer else [float(v) for v in text.split(",")]
     except ValueError:
         kind = "an integer" if integer else "a number"
         raise PetscOptionError(f"{where} = {value!r} needs {kind}") from None
-    if not integer and not all(math.isfinite(float(v)) for v in text.split(",")):
+    if not all(math.isfinite(v) for v in values):
         raise PetscOptionError(f"{where} = {value!r} needs a finite number")
+    number = min(values)
     if not integer and number < 0 and _TOLERANCE.search(name):
         raise PetscOptionError(f"{where} = {value!r} needs a number >= 0 (PETSc would take a "
                                "negative one as its default: leave the option out for that)")
