@@ -303,3 +303,15 @@ def test_coercivity_ratio_bounds_the_global_eigenvalue(degree):
     lam = scipy.linalg.eigvalsh(B[np.ix_(free, free)], A[np.ix_(free, free)]).max()
     assert lam <= rho * (1 + 1e-10)
     assert lam >= rho / 3
+
+
+def test_small_beta_with_coulomb_nitsche_in_3d_is_reported():
+    """β_n⁰ = 0.01 E made the contact Newton of configs/network3d.yaml creep and fail (pointwise
+    nitsche, Coulomb, 3D), silently: warned below 0.1 E; not at 0.1 E, nor with Tresca."""
+    cases = ((["contact.beta_n=9e8"], True), (["contact.beta_n=1e9"], False),
+             (["contact.beta_n=1e8", "contact.friction=tresca", "contact.slip_bound=1e5"], False))
+    for sets, warned in cases:
+        _, _, model = model_of("network3d", "degree=1", "mesh.size=0.6",
+                               "mesh.fracture_size=0.3", *sets)
+        said = [m for m in model.warnings if "may creep and fail" in m]
+        assert len(said) == int(warned), sets

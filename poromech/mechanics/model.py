@@ -74,6 +74,12 @@ IMBALANCE_LIMIT = 1e-3
 #: in rock softer than the 1e11 Pa above it (nitsche P2, Coulomb): 11, 12, 29 Newton iterations
 #: at ratios 10, 33, 100, and no convergence at 1000.
 SOFT_CONTRAST = 30.0
+#: β_n⁰ below this fraction of the largest Young's modulus is reported for pointwise ``nitsche``
+#: with Coulomb friction in 3D. configs/network3d.yaml (P1, θ = -1): at β_n⁰ = 0.01 E the
+#: compression step crept (steps of about 0.011 for 80 iterations) and failed at every cut; at
+#: 0.1 E 5/5/4/5 Newton iterations. At 0.01 E θ = 0, Tresca, frictionless, ``mean_nitsche``
+#: and 2D (the six-fracture scene) converge.
+SMALL_BETA_COULOMB_3D = 0.1
 #: Poisson's ratio from which P1 displacements are warned of volumetric locking (the jump error
 #: of the inclined crack: 0.04 at ν = 0.25, 0.17 at 0.49, 0.5 at 0.499; docs/mechanics.md).
 LOCKING_POISSON = 0.49
@@ -241,6 +247,16 @@ class MechanicsModel:
             self._check_soft_fractures(young)
         if c.theta == 1 and formulation in ("nitsche", "mean_nitsche", "stabilized_mixed"):
             self._check_symmetric_nitsche(young)
+        if (formulation == "nitsche" and c.friction == "coulomb" and msh.topology.dim == 3
+                and self.beta0[0] < SMALL_BETA_COULOMB_3D * self.young_max):
+            msg = (f"contact.beta_n = {self.beta0[0]:.3g} Pa is below "
+                   f"{SMALL_BETA_COULOMB_3D:g} times the largest Young's modulus "
+                   f"({self.young_max:.3g} Pa): with Coulomb friction in 3D the nitsche "
+                   f"contact Newton may creep and fail (configs/network3d.yaml failed at 0.01 "
+                   f"times, converged at 0.1; docs/mechanics3d.md); the default is "
+                   f"{Contact.BETA_N_PER_E:g} times")
+            self.warnings.append(msg)
+            log.warning(msg)
         return cforms.ContactParameters(
             formulation=formulation,
             friction=c.friction,
