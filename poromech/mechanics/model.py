@@ -215,7 +215,9 @@ class MechanicsModel:
         """Contact parameters; ``β⁰`` defaults to multiples of the largest Young's modulus.
 
         Also sets ``beta0 = (β_n⁰, β_τ⁰)`` (Pa) and ``young_max`` (Pa, at t = 0), and warns when
-        θ = 1 is used below its coercivity bound (:mod:`poromech.mechanics.coercivity`).
+        θ = 1 is used below its coercivity bound (:mod:`poromech.mechanics.coercivity`), and
+        when a 3D ``nitsche`` scene with Coulomb friction takes β_n⁰ below
+        :data:`SMALL_BETA_COULOMB_3D` times the largest Young's modulus.
         """
         c, msh = self.scene.contact, self.fm.msh
         h = face_size(msh)("+")
