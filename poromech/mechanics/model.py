@@ -249,16 +249,8 @@ class MechanicsModel:
             self._check_soft_fractures(young)
         if c.theta == 1 and formulation in ("nitsche", "mean_nitsche", "stabilized_mixed"):
             self._check_symmetric_nitsche(young)
-        if (formulation == "nitsche" and c.friction == "coulomb" and msh.topology.dim == 3
-                and self.beta0[0] < SMALL_BETA_COULOMB_3D * self.young_max):
-            msg = (f"contact.beta_n = {self.beta0[0]:.3g} Pa is below "
-                   f"{SMALL_BETA_COULOMB_3D:g} times the largest Young's modulus "
-                   f"({self.young_max:.3g} Pa): with Coulomb friction in 3D the nitsche "
-                   f"contact Newton may creep and fail (configs/network3d.yaml failed at 0.01 "
-                   f"times, converged at 0.1; docs/mechanics3d.md); the default is "
-                   f"{Contact.BETA_N_PER_E:g} times")
-            self.warnings.append(msg)
-            log.warning(msg)
+        if formulation == "nitsche" and c.friction == "coulomb" and msh.topology.dim == 3:
+            self._check_small_beta()
         return cforms.ContactParameters(
             formulation=formulation,
             friction=c.friction,
@@ -271,6 +263,24 @@ class MechanicsModel:
             dim=msh.topology.dim,
         )
 
+    def _warn(self, msg: str) -> None:
+        """Log a warning of the scene's set-up and keep it for ``summary.json``."""
+        self.warnings.append(msg)
+        log.warning(msg)
+
+    def _check_small_beta(self) -> None:
+        """Warn when β_n⁰ is below :data:`SMALL_BETA_COULOMB_3D` times the largest modulus.
+
+        For 3D pointwise ``nitsche`` with Coulomb friction (the caller checks).
+        """
+        if self.beta0[0] < SMALL_BETA_COULOMB_3D * self.young_max:
+            self._warn(f"contact.beta_n = {self.beta0[0]:.3g} Pa is below "
+                       f"{SMALL_BETA_COULOMB_3D:g} times the largest Young's modulus "
+                       f"({self.young_max:.3g} Pa): with Coulomb friction in 3D the nitsche "
+                       f"contact Newton may creep and fail (configs/network3d.yaml failed at "
+                       f"0.01 times, converged at 0.1; docs/mechanics3d.md); the default is "
+                       f"{Contact.BETA_N_PER_E:g} times")
+
     def _check_locking(self) -> None:
         """Warn of P1 displacements in a nearly incompressible rock (collective)."""
         nu = _cell_values(self.fm.msh, self.scene.material.poisson)
@@ -279,8 +289,7 @@ class MechanicsModel:
             msg = (f"degree 1 with Poisson's ratio up to {largest:g}: P1 displacements lock as ν "
                    "→ 0.5 (jumps too small: error 0.17 at ν = 0.49 and 0.5 at 0.499, against "
                    "0.04 at 0.25, docs/mechanics.md); use degree 2")
-            self.warnings.append(msg)
-            log.warning(msg)
+            self._warn(msg)
 
     def _check_soft_fractures(self, young: npt.NDArray[np.float64]) -> None:
         """Warn when a default β⁰ is far stiffer than the rock at some fracture face (collective).
@@ -301,8 +310,7 @@ class MechanicsModel:
                    f"of: the contact Newton may stall there; give contact.beta_n and "
                    f"contact.beta_t (e.g. {Contact.BETA_N_PER_E:g} and "
                    f"{Contact.BETA_T_PER_E:g} times the rock's modulus at the fractures)")
-            self.warnings.append(msg)
-            log.warning(msg)
+            self._warn(msg)
 
     def _check_symmetric_nitsche(self, young: npt.NDArray[np.float64]) -> None:
         """Warn when θ = 1 is not guaranteed coercive: ``ρ >= 1`` (collective).
@@ -323,8 +331,7 @@ class MechanicsModel:
                    f"{self.beta0[0]:.3g} Pa, beta_t = {self.beta0[1]:.3g} Pa; the discrete "
                    f"problem may have no solution or a wrong one. Multiply beta_n and beta_t by "
                    f"at least {rho:.2g}, or use theta -1")
-            self.warnings.append(msg)
-            log.warning(msg)
+            self._warn(msg)
 
     def _pressure_fields(self, Q0: fem.FunctionSpace) -> None:
         """Matrix and fracture pressures of a poromechanics scene, set by the coupling (Pa).
