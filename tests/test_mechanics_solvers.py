@@ -17,7 +17,7 @@ from dolfinx.fem.petsc import assemble_matrix
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from poromech.errors import ConfigError
+from poromech.errors import ConfigError, SolverError
 from poromech.forms.elasticity import elastic_form
 from poromech.io.checkpoint import cell_dof_rows
 from poromech.mechanics.linear import ITERATIVE_OPTIONS, rigid_body_modes
@@ -453,3 +453,33 @@ def test_forcing_term_of_the_inexact_newton():
     assert forcing_term(0.1, 1.0, 1e-10, 1e-11, switched=True) == pytest.approx(0.9e-2)
     assert forcing_term(1e-3, 1.0, 1e-10, 1e-11, switched=True) == pytest.approx(0.9e-6)
     assert forcing_term(1.0, None, 1e-10, 1e-11, switched=True) == FORCING_MAX  # first
+
+
+def test_auto_hands_a_failed_krylov_solve_to_mumps(monkeypatch):
+    """``auto``: the first Krylov solve that fails (here one CG iteration is allowed) hands the
+    run to MUMPS LU, which then gives the direct solution; the switch is in the summary."""
+    monkeypatch.setattr(resources, "ITERATIVE_FROM_UNKNOWNS_3D", 1_000)
+    direct = penny_solution(MPI.COMM_WORLD, "solver.linear_solver=direct")
+    out = penny_solution(MPI.COMM_WORLD, "solver.petsc.ksp_max_it=1")
+    summary = out["summary"]
+    assert summary["linear_solver"]["kind"] == "iterative"
+    assert summary["linear_solver"]["fallback"] == "direct"
+    assert summary["linear_solver"]["preconditioner_setups"] >= 2  # the GAMG set-up, then LU
+    assert [w for w in summary["warnings"] if "the mechanics switches to MUMPS LU" in w]
+    assert _relative(out["u"], direct["u"]) < 1e-10
+    assert _relative(out["w"], direct["w"]) < 1e-10
+
+
+def test_auto_keeps_a_krylov_failure_where_mumps_would_not_fit(monkeypatch):
+    """Without the memory for the factorization the run fails with the Krylov method's reason,
+    and says that LU was not tried; an explicit ``iterative`` never switches."""
+    from poromech.mechanics import physics
+
+    monkeypatch.setattr(resources, "ITERATIVE_FROM_UNKNOWNS_3D", 1_000)
+    monkeypatch.setattr(physics, "available_memory", lambda comm: (1e6, "MemAvailable"))
+    with pytest.raises(SolverError, match="DIVERGED_LINEAR_SOLVE"):
+        penny_solution(MPI.COMM_WORLD, "solver.petsc.ksp_max_it=1")
+    monkeypatch.undo()
+    with pytest.raises(SolverError, match="DIVERGED_LINEAR_SOLVE"):
+        penny_solution(MPI.COMM_WORLD, "solver.linear_solver=iterative",
+                       "solver.petsc.ksp_max_it=1")

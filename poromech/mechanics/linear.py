@@ -464,6 +464,8 @@ class DirectSolver:
             (:meth:`price`) instead of :data:`STALE_BUDGET`, with no smallest size (3D: the
             friction Jacobian changes with the slip directions while no state changes, and a
             factorization costs tens of stale iterations already at 50k unknowns).
+        owns_ksp: :meth:`destroy` frees ``ksp`` too (a KSP created for this solver, not the
+            Newton's).
 
     Attributes:
         stale_min_unknowns: Smallest system on which stale GMRES is tried
@@ -473,8 +475,9 @@ class DirectSolver:
     """
 
     def __init__(self, ksp: PETSc.KSP, A: PETSc.Mat, prefix: str, *, reuse: bool, stale: bool,
-                 priced: bool = False):
+                 priced: bool = False, owns_ksp: bool = False):
         self.ksp, self.A, self.comm = ksp, A, A.getComm().tompi4py()
+        self.owns_ksp = owns_ksp
         self.reuse = reuse
         self.priced = priced
         self.stale_min_unknowns = STALE_MIN_UNKNOWNS
@@ -619,9 +622,11 @@ class DirectSolver:
         self._values = None
 
     def destroy(self) -> None:
-        """Free the stale GMRES."""
+        """Free the stale GMRES (and the KSP, when it owns it)."""
         if self._stale_ksp is not None:
             self._stale_ksp.destroy()
+        if self.owns_ksp:
+            self.ksp.destroy()
 
 
 class IterativeSolver:

@@ -60,7 +60,9 @@ The direction is solved by a linear strategy (:mod:`poromech.mechanics.linear`):
 factorization reused while the assembled Jacobian is bitwise unchanged (``reuse_jacobian``),
 with GMRES preconditioned by a stale factorization after few contact-state changes
 (``stale_factorization``, options prefix ``mech_stale_``); a Krylov method when the options ask
-for one. When the contact law says that its Jacobian is a function of the contact states only
+for one; a ``fallback`` may replace the strategy after its first failed solve (the scenes'
+``solver.linear_solver: auto`` hands a failed Krylov solve to MUMPS LU where it fits). When
+the contact law says that its Jacobian is a function of the contact states only
 (2D friction: piecewise affine), an unchanged active set skips the assembly of the Jacobian
 altogether (``states_determine_jacobian``), and a problem without contact terms whose
 coefficients are constant in time assembles its Jacobian once (``constant_jacobian``). A
@@ -261,6 +263,9 @@ class SemiSmoothNewton:
             :data:`NONMONOTONE_STEPS` iterations (:class:`LineSearchParameters`).
         exact_dirichlet: Set each direction to its exact value on the Dirichlet dofs
             (:meth:`exact_on_dirichlet`; for Krylov solves).
+        fallback: Called with the failure message of the first linear solve that fails; returns
+            the strategy that solves this and every later direction (e.g. a factorization after
+            a Krylov failure), or None to fail as without it (:meth:`solve_direction`).
 
     Attributes:
         A: The Jacobian matrix.
@@ -295,6 +300,7 @@ class SemiSmoothNewton:
         one_sided: bool = False,
         curved: bool = False,
         exact_dirichlet: bool = False,
+        fallback: Callable[[str], LinearStrategy | None] | None = None,
     ):
         self.F, self.J, self.u, self.bcs = list(F), [list(r) for r in J], list(unknowns), list(bcs)
         self.comm = self.u[0].function_space.mesh.comm
@@ -332,6 +338,8 @@ class SemiSmoothNewton:
         self.inexact = inexact
         self.exact_dirichlet = exact_dirichlet
         self.stale_priced = stale_priced
+        self._fallback = fallback
+        self._retired: list[LinearStrategy] = []  # strategies replaced by the fallback's
         self.snes, self.ksp, self.linear = self._create_snes(prefix, options or {},
                                                              stale_factorization, modes, coarse)
         if inexact and reuse_jacobian and hasattr(self.linear, "lagged"):
@@ -405,6 +413,8 @@ class SemiSmoothNewton:
         if self._step is not None:
             self._step.free()
         self.linear.destroy()
+        for strategy in self._retired:
+            strategy.destroy()
         own_ksp = None if self._is_python() else self.ksp  # not the SNES's
         for obj in (self.snes, own_ksp, self.A, self.b, self.x, self._cache_x, self._cache_f,
                     self._K, self._bc_gap):
@@ -554,6 +564,27 @@ class SemiSmoothNewton:
                 sub = A.getLocalSubMatrix(rows[i], rows[j])
                 _cpp.fem.petsc.insert_diagonal(sub, a.function_spaces[0], bcs, 1.0)
                 A.restoreLocalSubMatrix(rows[i], rows[j], sub)
+
+    def solve_direction(self, b: PETSc.Vec, y: PETSc.Vec, states: np.ndarray | None) -> bool:
+        """``J y = b`` by the linear strategy; after its first failure, by the fallback's.
+
+        With a ``fallback`` (see the class), the first failed solve hands over to the strategy
+        it returns: that one solves the same system at once and every later direction of the
+        run (the failed one is kept until :meth:`destroy`). Returns whether ``y`` was solved.
+        """
+        if self.linear.solve(b, y, self.record, states):
+            return True
+        fallback, self._fallback = self._fallback, None
+        strategy = fallback(self.record.linear_failure) if fallback is not None else None
+        if strategy is None:
+            return False
+        self._retired.append(self.linear)
+        self.linear = strategy
+        strategy.assembled(self._jacobian_states)
+        if not strategy.solve(b, y, self.record, states):
+            return False
+        self.record.linear_failure = ""
+        return True
 
     def _same_states(self, reference) -> bool:
         """Whether the current active set equals ``reference`` on every rank (collective)."""
@@ -727,7 +758,7 @@ class _LinearShell:
         s = self.s
         t0 = time.perf_counter()
         s.set_forcing_term()
-        solved = s.linear.solve(x, y, s.record, s.active_set)
+        solved = s.solve_direction(x, y, s.active_set)
         s.record.time_linear += time.perf_counter() - t0
         if not solved:
             s.linear.forget()
@@ -785,7 +816,7 @@ class _NewtonStep:
         snes.computeJacobian(X, s.A, s.A)
         t0 = time.perf_counter()
         s.set_forcing_term()
-        solved = s.linear.solve(F, Y, s.record, s.active_set)
+        solved = s.solve_direction(F, Y, s.active_set)
         s.record.time_linear += time.perf_counter() - t0
         if not solved:
             self.forced_reason = PETSc.SNES.ConvergedReason.DIVERGED_LINEAR_SOLVE
@@ -893,7 +924,7 @@ class _NewtonStep:
         s._assemble_jacobian(s.A, states)
         s.record.one_sided += 1
         t0 = time.perf_counter()
-        solved = s.linear.solve(F, self._direction, s.record, states)
+        solved = s.solve_direction(F, self._direction, states)
         s.record.time_linear += time.perf_counter() - t0
         if not solved:
             s.linear.forget()

@@ -30,7 +30,12 @@ from poromech.io.checkpoint import (
 from poromech.io.output import FractureTable, displacement_mesh, fracture_mesh, owned_blocks
 from poromech.io.probes import open_probes
 from poromech.io.xdmf import XDMFSeries
-from poromech.mechanics.linear import is_direct, iterative_options, rigid_body_modes
+from poromech.mechanics.linear import (
+    DirectSolver,
+    is_direct,
+    iterative_options,
+    rigid_body_modes,
+)
 from poromech.mechanics.model import MechanicsModel, PressureCoupling
 from poromech.mechanics.multigrid import p1_interpolation
 from poromech.mechanics.newton import NewtonRecord, SemiSmoothNewton, quoted_history
@@ -38,7 +43,12 @@ from poromech.mechanics.predictor import START_NAMES, StepPredictor, start_rule
 from poromech.mesh.entities import fracture_segments
 from poromech.mesh.fractured import FracturedMesh, cracked_space
 from poromech.physics import Keyed, StepResult
-from poromech.scene.resources import ELIMINATED_FORMULATIONS, mechanics_solver
+from poromech.scene.resources import (
+    DIRECT_BYTES_3D,
+    ELIMINATED_FORMULATIONS,
+    available_memory,
+    mechanics_solver,
+)
 from poromech.scene.schema import Scene
 from poromech.timing import Timer
 
@@ -47,6 +57,11 @@ __all__ = ["MechanicsPhysics", "check_pieces", "floating_pieces", "formulation_o
 
 log = logging.getLogger("poromech")
 
+#: ``solver.linear_solver: auto`` hands a 3D run whose Krylov solve failed to MUMPS LU only when
+#: this many times the factorization's estimated memory is available (the estimate was within a
+#: factor 1.2 of the measured peaks, :mod:`poromech.scene.resources`): a run that would not fit
+#: fails with the Krylov method's message instead of being killed for want of memory.
+FALLBACK_MEMORY_MARGIN = 1.5
 #: Face fields written to ``fractures.xdmf`` and ``fractures.csv`` (besides ``state``).
 WRITTEN_FACE_FIELDS = ("jump_n", "jump_t", "traction_n", "traction_t")
 #: In 3D: the magnitudes and the global components of the tangential jump and traction.
@@ -229,7 +244,12 @@ class MechanicsPhysics:
                 one_sided=fm.msh.topology.dim == 3,
                 curved=not model.params.piecewise_affine,
                 exact_dirichlet=self.linear_solver == "iterative",
+                fallback=(self._direct_fallback if scene.solver.linear_solver == "auto"
+                          and self.linear_solver == "iterative" else None),
             )
+        #: ``"direct"`` once a failed Krylov solve handed the run to MUMPS LU
+        #: (:meth:`_direct_fallback`), else None.
+        self.fallback: str | None = None
         self._log_linear_solver()
         self.linear_totals = {"krylov_iterations": 0, "preconditioner_setups": 0,
                               "time_preconditioner": 0.0}
@@ -252,6 +272,43 @@ class MechanicsPhysics:
         self._series: dict[str, XDMFSeries] = {}
         self._table: FractureTable | None = None
         self._probes: list[tuple] = []
+
+    def _direct_fallback(self, failure: str) -> DirectSolver | None:
+        """MUMPS LU for the rest of the run, after the first failed Krylov solve (``auto``).
+
+        Only where the factorization fits: :data:`FALLBACK_MEMORY_MARGIN` times its estimate
+        (:data:`~poromech.scene.resources.DIRECT_BYTES_3D` ``n^{4/3}``) within the memory
+        available now; otherwise None, and the Newton fails as before. Said in one warning
+        (kept for ``summary.json``) either way (collective).
+        """
+        n = self.model.dof_count()
+        need = DIRECT_BYTES_3D * n ** (4 / 3)
+        available, limit = available_memory(self.fm.comm)
+        fits = FALLBACK_MEMORY_MARGIN * need <= available
+        what = ("solver.linear_solver auto: the mechanics switches to MUMPS LU for the rest of "
+                "the run" if fits else "MUMPS LU is not tried")
+        self._warn_run(f"the iterative linear solve failed ({failure}); {what} (about "
+                       f"{need / 1e9:.2g} GB for {n} unknowns, {available / 1e9:.3g} GB "
+                       f"available, {limit})")
+        if not fits:
+            return None
+        self.fallback = "direct"
+        A = self.solver.A
+        ksp = PETSc.KSP().create(self.fm.comm)
+        ksp.setOptionsPrefix("mech_fallback_")
+        ksp.setType(PETSc.KSP.Type.PREONLY)
+        ksp.getPC().setType(PETSc.PC.Type.LU)
+        ksp.getPC().setFactorSolverType("mumps")
+        ksp.setOperators(A, A)
+        ksp.setFromOptions()
+        return DirectSolver(ksp, A, self.solver.prefix, reuse=self.scene.solver.reuse_jacobian,
+                            stale=self.scene.solver.stale_factorization, priced=True,
+                            owns_ksp=True)
+
+    def _warn_run(self, msg: str) -> None:
+        """Log a warning of the run and keep it for ``summary.json`` (rank 0 logs)."""
+        self.model.warnings.append(msg)
+        log.warning(msg)
 
     def _log_linear_solver(self) -> None:
         """Say once which linear solver the mechanics runs, and why (rank 0 logs)."""
@@ -548,7 +605,11 @@ class MechanicsPhysics:
             totals["p_multigrid"] = {"fine_smoother": multigrid.smoother,
                                      "fine_format": multigrid.fine_format or "aij",
                                      "coarse_unknowns": multigrid.coarse_size}
+        if self.fallback is not None:
+            totals["fallback"] = self.fallback
         summary.setdefault("linear_solver", {}).update(totals)
+        if self.model.warnings:  # with those of the run (a solver's fallback)
+            summary["warnings"] = list(self.model.warnings)
         if self.solver.condensed is not None:
             summary["condensed"] = self.solver.condensed.describe()
 

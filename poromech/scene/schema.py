@@ -377,7 +377,9 @@ class Solver:
                      "with an inexact Newton for contact, on the displacement Schur complement "
                      "for mean_nitsche and stabilized_mixed; not for mixed), or auto: direct "
                      "in 2D and for mixed, iterative in 3D above "
-                     f"{ITERATIVE_FROM_UNKNOWNS_3D:,} unknowns (counted after meshing); "
+                     f"{ITERATIVE_FROM_UNKNOWNS_3D:,} unknowns (counted after meshing), "
+                     "switching to MUMPS LU for the rest of the run after a failed Krylov "
+                     "solve where the factorization fits in memory; "
                      "solver.petsc options override either's defaults"),
     )
     line_search: Literal["contact", "basic", "bt", "l2", "cp"] = field(
