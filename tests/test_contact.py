@@ -309,9 +309,28 @@ def test_small_beta_with_coulomb_nitsche_in_3d_is_reported():
     """β_n⁰ = 0.01 E made the contact Newton of configs/network3d.yaml creep and fail (pointwise
     nitsche, Coulomb, 3D), silently: warned below 0.1 E; not at 0.1 E, nor with Tresca."""
     cases = ((["contact.beta_n=9e8"], True), (["contact.beta_n=1e9"], False),
-             (["contact.beta_n=1e8", "contact.friction=tresca", "contact.slip_bound=1e5"], False))
+             (["contact.beta_n=1e8", "contact.friction=tresca", "contact.slip_bound=1e5"], False),
+             (["contact.beta_n=1e8", "contact.theta=0"], False))
     for sets, warned in cases:
         _, _, model = model_of("network3d", "degree=1", "mesh.size=0.6",
                                "mesh.fracture_size=0.3", *sets)
         said = [m for m in model.warnings if "may creep and fail" in m]
+        assert len(said) == int(warned), sets
+
+
+def test_small_beta_t_with_coulomb_nitsche_p2_in_3d_is_reported():
+    """β_τ⁰ = E against β_n⁰ = 250 E broke the Krylov solves of configs/network3d.yaml (P2,
+    Coulomb, θ = -1) and MUMPS' Newton did not converge: warned below β_n⁰/25 for the three
+    Nitsche formulations; not at the defaults' ratio, with θ = 0, with Tresca, nor with P1."""
+    cases = ((["contact.beta_t=9.9e10"], True),
+             (["contact.beta_t=1e11"], False),  # the defaults' ratio, 10/250
+             (["contact.beta_t=1e10", "contact.formulation=mean_nitsche"], True),
+             (["contact.beta_t=1e10", "contact.beta_n=2.5e11"], False),
+             (["contact.beta_t=1e10", "contact.theta=0"], False),
+             (["contact.beta_t=1e10", "contact.friction=tresca", "contact.slip_bound=1e5"],
+              False),
+             (["contact.beta_t=1e10", "degree=1"], False))
+    for sets, warned in cases:
+        _, _, model = model_of("network3d", "mesh.size=0.6", "mesh.fracture_size=0.3", *sets)
+        said = [m for m in model.warnings if "contact.beta_t" in m and "may fail" in m]
         assert len(said) == int(warned), sets

@@ -80,6 +80,16 @@ SOFT_CONTRAST = 30.0
 #: 0.1 E 5/5/4/5 Newton iterations. At 0.01 E θ = 0, Tresca, frictionless, ``mean_nitsche``
 #: and 2D (the six-fracture scene) converge.
 SMALL_BETA_COULOMB_3D = 0.1
+#: β_τ⁰ below this fraction of β_n⁰ is reported for the Nitsche formulations (``nitsche``,
+#: ``mean_nitsche``, ``stabilized_mixed``, θ ≠ 0) with Coulomb friction and P2 displacements in
+#: 3D; the defaults' ratio is 10/250. The linearized friction bound couples the tangential rows
+#: to the normal jump through ``θ F β_n/β_τ σ_τ(v)``. configs/network3d.yaml (P2, β_n⁰ = 250 E):
+#: at β_τ⁰ = 10 E 6/9/8/9 Newton iterations; at 3 E, 2.5 E and E the Krylov solves of
+#: ``nitsche`` break down at the first step (at E also those of ``mean_nitsche`` and
+#: ``stabilized_mixed``) and with MUMPS ``nitsche``'s Newton does not converge in 100
+#: iterations; β_n⁰ = 2500 E, β_τ⁰ = 10 E converged in 9/16/18/32. At β_τ⁰ = E converge: θ = 0
+#: (6/17/10/13), β_n⁰ = 25 E (6/8/7/7), and P1 (8/8/6/9).
+SMALL_BETA_T_RATIO_3D = 1 / 25
 #: Poisson's ratio from which P1 displacements are warned of volumetric locking (the jump error
 #: of the inclined crack: 0.04 at ν = 0.25, 0.17 at 0.49, 0.5 at 0.499; docs/mechanics.md).
 LOCKING_POISSON = 0.49
@@ -216,8 +226,9 @@ class MechanicsModel:
 
         Also sets ``beta0 = (β_n⁰, β_τ⁰)`` (Pa) and ``young_max`` (Pa, at t = 0), and warns when
         θ = 1 is used below its coercivity bound (:mod:`poromech.mechanics.coercivity`), and
-        when a 3D ``nitsche`` scene with Coulomb friction takes β_n⁰ below
-        :data:`SMALL_BETA_COULOMB_3D` times the largest Young's modulus.
+        when a 3D scene with Coulomb friction and θ ≠ 0 takes β_n⁰ below
+        :data:`SMALL_BETA_COULOMB_3D` times the largest Young's modulus (``nitsche``) or, with
+        P2, β_τ⁰ below :data:`SMALL_BETA_T_RATIO_3D` times β_n⁰ (the Nitsche formulations).
         """
         c, msh = self.scene.contact, self.fm.msh
         h = face_size(msh)("+")
@@ -249,8 +260,12 @@ class MechanicsModel:
             self._check_soft_fractures(young)
         if c.theta == 1 and formulation in ("nitsche", "mean_nitsche", "stabilized_mixed"):
             self._check_symmetric_nitsche(young)
-        if formulation == "nitsche" and c.friction == "coulomb" and msh.topology.dim == 3:
-            self._check_small_beta()
+        if c.friction == "coulomb" and msh.topology.dim == 3 and c.theta != 0:
+            if formulation == "nitsche":
+                self._check_small_beta()
+            if formulation in ("nitsche", "mean_nitsche", "stabilized_mixed") \
+                    and self.scene.degree == 2:
+                self._check_small_beta_t()
         return cforms.ContactParameters(
             formulation=formulation,
             friction=c.friction,
@@ -271,7 +286,7 @@ class MechanicsModel:
     def _check_small_beta(self) -> None:
         """Warn when β_n⁰ is below :data:`SMALL_BETA_COULOMB_3D` times the largest modulus.
 
-        For 3D pointwise ``nitsche`` with Coulomb friction (the caller checks).
+        For 3D pointwise ``nitsche`` with Coulomb friction and θ ≠ 0 (the caller checks).
         """
         if self.beta0[0] < SMALL_BETA_COULOMB_3D * self.young_max:
             self._warn(f"contact.beta_n = {self.beta0[0]:.3g} Pa is below "
@@ -280,6 +295,19 @@ class MechanicsModel:
                        f"contact Newton may creep and fail (configs/network3d.yaml failed at "
                        f"0.01 times, converged at 0.1; docs/mechanics3d.md); the default is "
                        f"{Contact.BETA_N_PER_E:g} times")
+
+    def _check_small_beta_t(self) -> None:
+        """Warn when β_τ⁰ is below :data:`SMALL_BETA_T_RATIO_3D` times β_n⁰.
+
+        For the 3D Nitsche formulations with Coulomb friction, θ ≠ 0 and P2 (the caller checks).
+        """
+        beta_n, beta_t = self.beta0
+        if beta_t < SMALL_BETA_T_RATIO_3D * beta_n:
+            self._warn(f"contact.beta_t = {beta_t:.3g} Pa is below 1/{1 / SMALL_BETA_T_RATIO_3D:g} "
+                       f"of contact.beta_n ({beta_n:.3g} Pa): with Coulomb friction, theta "
+                       f"{self.scene.contact.theta:g} and P2 in 3D the contact Newton and its "
+                       f"linear solves may fail (configs/network3d.yaml failed at 1/83 and 1/250, "
+                       f"converged at 1/25 and with theta 0; docs/mechanics3d.md)")
 
     def _check_locking(self) -> None:
         """Warn of P1 displacements in a nearly incompressible rock (collective)."""
