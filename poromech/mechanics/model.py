@@ -86,9 +86,10 @@ SMALL_BETA_COULOMB_3D = 0.1
 #: to the normal jump through ``θ F β_n/β_τ σ_τ(v)``. configs/network3d.yaml (P2, β_n⁰ = 250 E):
 #: at β_τ⁰ = 10 E 6/9/8/9 Newton iterations; at 3 E, 2.5 E and E the Krylov solves of
 #: ``nitsche`` break down at the first step (at E also those of ``mean_nitsche`` and
-#: ``stabilized_mixed``) and with MUMPS ``nitsche``'s Newton does not converge in 100
-#: iterations; β_n⁰ = 2500 E, β_τ⁰ = 10 E converged in 9/16/18/32. At β_τ⁰ = E converge: θ = 0
-#: (6/17/10/13), β_n⁰ = 25 E (6/8/7/7), and P1 (8/8/6/9).
+#: ``stabilized_mixed``, which converge once MUMPS takes over: docs/mechanics3d.md), and at E
+#: ``nitsche``'s Newton does not converge in 100 iterations with MUMPS either; β_n⁰ = 2500 E,
+#: β_τ⁰ = 10 E converged in 9/16/18/32. At β_τ⁰ = E converge: θ = 0 (6/17/10/13), β_n⁰ = 25 E
+#: (6/8/7/7), and P1 (8/8/6/9).
 SMALL_BETA_T_RATIO_3D = 1 / 25
 #: Poisson's ratio from which P1 displacements are warned of volumetric locking (the jump error
 #: of the inclined crack: 0.04 at ν = 0.25, 0.17 at 0.49, 0.5 at 0.499; docs/mechanics.md).

@@ -609,7 +609,8 @@ class MechanicsPhysics:
             totals["fallback"] = self.fallback
         summary.setdefault("linear_solver", {}).update(totals)
         if self.model.warnings:  # with those of the run (a solver's fallback)
-            summary["warnings"] = list(self.model.warnings)
+            kept = summary.setdefault("warnings", [])
+            kept.extend(w for w in self.model.warnings if w not in kept)
         if self.solver.condensed is not None:
             summary["condensed"] = self.solver.condensed.describe()
 
