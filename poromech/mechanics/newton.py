@@ -571,6 +571,8 @@ class SemiSmoothNewton:
         With a ``fallback`` (see the class), the first failed solve hands over to the strategy
         it returns: that one solves the same system at once and every later direction of the
         run (the failed one is kept until :meth:`destroy`). Returns whether ``y`` was solved.
+        For the Newton directions, whose failure would end the solve (a one-sided direction
+        that fails is only skipped, and does not hand over).
         """
         if self.linear.solve(b, y, self.record, states):
             return True
@@ -924,7 +926,9 @@ class _NewtonStep:
         s._assemble_jacobian(s.A, states)
         s.record.one_sided += 1
         t0 = time.perf_counter()
-        solved = s.solve_direction(F, self._direction, states)
+        # not solve_direction: a failed one-sided solve only skips this direction, the run
+        # keeps its solver
+        solved = s.linear.solve(F, self._direction, s.record, states)
         s.record.time_linear += time.perf_counter() - t0
         if not solved:
             s.linear.forget()
