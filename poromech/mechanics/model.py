@@ -279,8 +279,8 @@ class MechanicsModel:
             dim=msh.topology.dim,
         )
 
-    def _warn(self, msg: str) -> None:
-        """Log a warning of the scene's set-up and keep it for ``summary.json``."""
+    def warn(self, msg: str) -> None:
+        """Log a warning of the scene (set-up or run) and keep it for ``summary.json``."""
         self.warnings.append(msg)
         log.warning(msg)
 
@@ -290,7 +290,7 @@ class MechanicsModel:
         For 3D pointwise ``nitsche`` with Coulomb friction and θ ≠ 0 (the caller checks).
         """
         if self.beta0[0] < SMALL_BETA_COULOMB_3D * self.young_max:
-            self._warn(f"contact.beta_n = {self.beta0[0]:.3g} Pa is below "
+            self.warn(f"contact.beta_n = {self.beta0[0]:.3g} Pa is below "
                        f"{SMALL_BETA_COULOMB_3D:g} times the largest Young's modulus "
                        f"({self.young_max:.3g} Pa): with Coulomb friction in 3D the nitsche "
                        f"contact Newton may creep and fail (configs/network3d.yaml failed at "
@@ -304,7 +304,7 @@ class MechanicsModel:
         """
         beta_n, beta_t = self.beta0
         if beta_t < SMALL_BETA_T_RATIO_3D * beta_n:
-            self._warn(f"contact.beta_t = {beta_t:.3g} Pa is below 1/{1 / SMALL_BETA_T_RATIO_3D:g} "
+            self.warn(f"contact.beta_t = {beta_t:.3g} Pa is below 1/{1 / SMALL_BETA_T_RATIO_3D:g} "
                        f"of contact.beta_n ({beta_n:.3g} Pa): with Coulomb friction, theta "
                        f"{self.scene.contact.theta:g} and P2 in 3D the contact Newton and its "
                        f"linear solves may fail (configs/network3d.yaml failed at 1/83 and 1/250, "
@@ -318,7 +318,7 @@ class MechanicsModel:
             msg = (f"degree 1 with Poisson's ratio up to {largest:g}: P1 displacements lock as ν "
                    "→ 0.5 (jumps too small: error 0.17 at ν = 0.49 and 0.5 at 0.499, against "
                    "0.04 at 0.25, docs/mechanics.md); use degree 2")
-            self._warn(msg)
+            self.warn(msg)
 
     def _check_soft_fractures(self, young: npt.NDArray[np.float64]) -> None:
         """Warn when a default β⁰ is far stiffer than the rock at some fracture face (collective).
@@ -339,7 +339,7 @@ class MechanicsModel:
                    f"of: the contact Newton may stall there; give contact.beta_n and "
                    f"contact.beta_t (e.g. {Contact.BETA_N_PER_E:g} and "
                    f"{Contact.BETA_T_PER_E:g} times the rock's modulus at the fractures)")
-            self._warn(msg)
+            self.warn(msg)
 
     def _check_symmetric_nitsche(self, young: npt.NDArray[np.float64]) -> None:
         """Warn when θ = 1 is not guaranteed coercive: ``ρ >= 1`` (collective).
@@ -360,7 +360,7 @@ class MechanicsModel:
                    f"{self.beta0[0]:.3g} Pa, beta_t = {self.beta0[1]:.3g} Pa; the discrete "
                    f"problem may have no solution or a wrong one. Multiply beta_n and beta_t by "
                    f"at least {rho:.2g}, or use theta -1")
-            self._warn(msg)
+            self.warn(msg)
 
     def _pressure_fields(self, Q0: fem.FunctionSpace) -> None:
         """Matrix and fracture pressures of a poromechanics scene, set by the coupling (Pa).

@@ -44,9 +44,9 @@ from poromech.mesh.entities import fracture_segments
 from poromech.mesh.fractured import FracturedMesh, cracked_space
 from poromech.physics import Keyed, StepResult
 from poromech.scene.resources import (
-    DIRECT_BYTES_3D,
     ELIMINATED_FORMULATIONS,
     available_memory,
+    direct_solve_bytes_3d,
     mechanics_solver,
 )
 from poromech.scene.schema import Scene
@@ -277,17 +277,17 @@ class MechanicsPhysics:
         """MUMPS LU for the rest of the run, after the first failed Krylov solve (``auto``).
 
         Only where the factorization fits: :data:`FALLBACK_MEMORY_MARGIN` times its estimate
-        (:data:`~poromech.scene.resources.DIRECT_BYTES_3D` ``n^{4/3}``) within the memory
+        (:func:`~poromech.scene.resources.direct_solve_bytes_3d`) within the memory
         available now; otherwise None, and the Newton fails as before. Said in one warning
         (kept for ``summary.json``) either way (collective).
         """
         n = self.model.dof_count()
-        need = DIRECT_BYTES_3D * n ** (4 / 3)
+        need = direct_solve_bytes_3d(n)
         available, limit = available_memory(self.fm.comm)
         fits = FALLBACK_MEMORY_MARGIN * need <= available
         what = ("solver.linear_solver auto: the mechanics switches to MUMPS LU for the rest of "
                 "the run" if fits else "MUMPS LU is not tried")
-        self._warn_run(f"the iterative linear solve failed ({failure}); {what} (about "
+        self.model.warn(f"the iterative linear solve failed ({failure}); {what} (about "
                        f"{need / 1e9:.2g} GB for {n} unknowns, {available / 1e9:.3g} GB "
                        f"available, {limit})")
         if not fits:
@@ -304,11 +304,6 @@ class MechanicsPhysics:
         return DirectSolver(ksp, A, self.solver.prefix, reuse=self.scene.solver.reuse_jacobian,
                             stale=self.scene.solver.stale_factorization, priced=True,
                             owns_ksp=True)
-
-    def _warn_run(self, msg: str) -> None:
-        """Log a warning of the run and keep it for ``summary.json`` (rank 0 logs)."""
-        self.model.warnings.append(msg)
-        log.warning(msg)
 
     def _log_linear_solver(self) -> None:
         """Say once which linear solver the mechanics runs, and why (rank 0 logs)."""

@@ -58,6 +58,7 @@ __all__ = [
     "RunEstimate",
     "available_memory",
     "check_resources",
+    "direct_solve_bytes_3d",
     "estimate_cells",
     "estimate_run",
     "mechanics_solver",
@@ -327,11 +328,16 @@ def estimate_run(scene, geo: PlaneGeometry, ranks: int = 1) -> RunEstimate:
     return RunEstimate(cells, unknowns, memory)
 
 
+def direct_solve_bytes_3d(unknowns: float) -> float:
+    """Memory of a 3D MUMPS solve over all ranks: :data:`DIRECT_BYTES_3D` ``n^{4/3}`` bytes."""
+    return DIRECT_BYTES_3D * unknowns ** (4 / 3)
+
+
 def _estimate_3d(scene, cells: float, ranks: int) -> RunEstimate:
     """3D (mechanics only): rank 0's meshing peak, or its share of the solve, plus the others'."""
     unknowns = UNKNOWNS_PER_CELL[(3, scene.degree)] * cells
     if mechanics_solver(scene, unknowns) == "direct":
-        solve = DIRECT_BYTES_3D * unknowns ** (4 / 3)
+        solve = direct_solve_bytes_3d(unknowns)
     else:
         solve = ITERATIVE_BYTES_3D * unknowns
     others = solve * (ranks - 1) / ranks if ranks > 1 else 0.0  # (inf * 0 would be nan)
