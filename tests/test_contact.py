@@ -248,6 +248,51 @@ def test_default_beta_far_stiffer_than_the_rock_at_a_fracture_is_reported(caplog
         assert ("times softer" in caplog.text) == warned
 
 
+def face_beta_n(model, fm) -> float:
+    """The mean of ``β_n h_σ`` over the fracture faces (Pa): ``β_n⁰`` where it is uniform."""
+    from dolfinx import fem
+
+    from poromech.mesh.fractured import FRACTURE_TAG, face_size, fracture_measure
+
+    dG = fracture_measure(fm)(FRACTURE_TAG)
+    h = face_size(fm.msh)("+")
+    total = fem.assemble_scalar(fem.form(model.params.beta_n * h * dG))
+    area = fem.assemble_scalar(fem.form(1.0 * dG))
+    return comm.allreduce(total, op=MPI.SUM) / comm.allreduce(area, op=MPI.SUM)
+
+
+def test_local_beta_scaling_takes_the_modulus_of_the_rock_at_each_face(tmp_path):
+    """The crack lies in rock of 1e8 Pa under rock of 1e11 Pa (y > 1.5). ``largest``: its faces
+    take β_n⁰ = 250 E_max; ``local``: 250 E_σ = 250 × 1e8 Pa, no soft-rock warning, and the
+    run gives the jumps and tractions of ``largest`` with β⁰ given as 250 and 10 × 1e8 Pa (the
+    same discretization) to round-off, while the default β⁰ of ``largest`` gives others. With
+    θ = 1 its coercivity ratio is that of a homogeneous 1e8 Pa rock."""
+    soft = ["material.young=where(y > 1.5, 1e11, 1e8)", "contact.beta_n=null",
+            "contact.beta_t=null"]
+    _, fm, model = model_of("inclined_crack_slip", *soft)
+    assert face_beta_n(model, fm) == pytest.approx(250 * 1e11, rel=1e-12)
+    assert any("times softer" in m for m in model.warnings)
+    _, fm, model = model_of("inclined_crack_slip", *soft, "contact.beta_scaling=local")
+    assert face_beta_n(model, fm) == pytest.approx(250 * 1e8, rel=1e-12)
+    assert model.beta0 == pytest.approx((250 * 1e11, 10 * 1e11), rel=1e-12)
+    assert not model.warnings
+    fields = {}
+    for name, sets in (("local", [*soft, "contact.beta_scaling=local"]),
+                       ("given", [*soft[:1], "contact.beta_n=2.5e10", "contact.beta_t=1e9"]),
+                       ("largest", soft)):
+        fields[name] = four(solve("inclined_crack_slip", *sets)[2].model.face_fields())
+    scale = np.abs(fields["given"]).max(axis=0)
+    assert (np.abs(fields["local"] - fields["given"]).max(axis=0) <= 1e-9 * scale).all(), \
+        np.abs(fields["local"] - fields["given"]).max(axis=0) / scale
+    assert np.abs(fields["largest"] - fields["given"]).max(axis=0)[0] > 1e-3 * scale[0]
+    ratios = {}
+    for name, sets in (("local", [*soft, "contact.beta_scaling=local"]),
+                       ("soft rock", ["material.young=1e8", *soft[1:]])):
+        ratios[name] = model_of("inclined_crack_slip", *sets, "contact.theta=1")[2] \
+            .coercivity_ratio
+    assert ratios["local"] == pytest.approx(ratios["soft rock"], rel=1e-9)
+
+
 def test_p1_in_a_nearly_incompressible_rock_is_warned_of_locking():
     """P1 at ν = 0.4999 gave 15 % of the slip of P2 (volumetric locking), silently: warned from
     ν = 0.49 on; not for P2 nor at ν = 0.25."""

@@ -65,7 +65,7 @@ def _cell_ratio(A: npt.NDArray[np.float64], B: npt.NDArray[np.float64]) -> float
 
 def symmetric_nitsche_ratio(fm: FracturedMesh, degree: int, young: npt.ArrayLike,
                             poisson: npt.ArrayLike, beta_n0: float, beta_t0: float | None,
-                            side: str = "plus") -> float:
+                            side: str = "plus", local: bool = False) -> float:
     """The ratio ``ρ`` above: symmetric Nitsche is coercive on this mesh when ``ρ < 1``.
 
     Args:
@@ -76,6 +76,8 @@ def symmetric_nitsche_ratio(fm: FracturedMesh, degree: int, young: npt.ArrayLike
         beta_n0: ``β_n⁰`` (Pa).
         beta_t0: ``β_τ⁰`` (Pa), or None without friction (no tangential Nitsche terms).
         side: ``"plus"`` or ``"mean"``, as ``contact.traction_side``.
+        local: ``β⁰`` are the values at the largest modulus, each face taking ``β⁰ E_σ/E_max``
+            (``contact.beta_scaling: local``).
 
     Returns:
         ``ρ`` (identical on every rank; 0 without fractures). Collective. In parallel, a cell
@@ -99,6 +101,11 @@ def symmetric_nitsche_ratio(fm: FracturedMesh, degree: int, young: npt.ArrayLike
     a = fem.form(ufl.inner(sigma(u, E, nu), epsilon(v)) * dx(1))
     dG = fracture_measure(fm)(FRACTURE_TAG)
     h = face_size(msh)("+")
+    if local:
+        young_max = msh.comm.allreduce(float(np.max(young, initial=0.0)), op=MPI.MAX)
+        scale = ufl.max_value(E("+"), E("-")) / young_max
+        beta_n0 = beta_n0 * scale
+        beta_t0 = None if beta_t0 is None else beta_t0 * scale
     b = fem.form(_traction_form(u, v, n, h, E, nu, side, beta_n0, beta_t0) * dG)
     A = fem.assemble_matrix(a).to_scipy(ghosted=True).tocsr()
     B = fem.assemble_matrix(b).to_scipy(ghosted=True).tocsr()

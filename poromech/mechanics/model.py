@@ -225,6 +225,10 @@ class MechanicsModel:
     def _contact_parameters(self) -> cforms.ContactParameters:
         """Contact parameters; ``β⁰`` defaults to multiples of the largest Young's modulus.
 
+        With ``contact.beta_scaling: local`` the Nitsche formulations' ``β`` of a face is
+        weighted by ``E_σ/E_max`` (:attr:`beta_weight`, ``E_σ`` the larger modulus of its two
+        cells): ``β⁰`` is then the value at the stiffest rock.
+
         Also sets ``beta0 = (β_n⁰, β_τ⁰)`` (Pa) and ``young_max`` (Pa, at t = 0), and warns when
         θ = 1 is used below its coercivity bound (:mod:`poromech.mechanics.coercivity`), and
         when a 3D scene with Coulomb friction and θ ≠ 0 takes β_n⁰ below
@@ -256,28 +260,40 @@ class MechanicsModel:
             beta = self.beta_sm0
         self.warnings: list[str] = []
         self.coercivity_ratio: float | None = None  # of symmetric Nitsche (θ = 1) only
-        if formulation in ("nitsche", "mean_nitsche", "stabilized_mixed") and (
-                c.beta_n is None or c.beta_t is None):
+        nitsche_like = formulation in ("nitsche", "mean_nitsche", "stabilized_mixed")
+        #: ``E/E_max`` per local cell (DG0) when ``contact.beta_scaling`` is ``local``, else None.
+        self.beta_weight = self._beta_weight(young) if nitsche_like \
+            and c.beta_scaling == "local" else None
+        if nitsche_like and self.beta_weight is None and (c.beta_n is None or c.beta_t is None):
             self._check_soft_fractures(young)
-        if c.theta == 1 and formulation in ("nitsche", "mean_nitsche", "stabilized_mixed"):
+        if c.theta == 1 and nitsche_like:
             self._check_symmetric_nitsche(young)
         if c.friction == "coulomb" and msh.topology.dim == 3 and c.theta != 0:
             if formulation == "nitsche":
                 self._check_small_beta()
-            if formulation in ("nitsche", "mean_nitsche", "stabilized_mixed") \
-                    and self.scene.degree == 2:
+            if nitsche_like and self.scene.degree == 2:
                 self._check_small_beta_t()
+        beta_n, beta_t = fem.Constant(msh, beta[0]), fem.Constant(msh, beta[1])
+        if self.beta_weight is not None:
+            beta_n, beta_t = (b * _face_max(self.beta_weight) for b in (beta_n, beta_t))
         return cforms.ContactParameters(
             formulation=formulation,
             friction=c.friction,
             theta=c.theta,
-            beta_n=fem.Constant(msh, beta[0]) / h,
-            beta_t=fem.Constant(msh, beta[1]) / h,
+            beta_n=beta_n / h,
+            beta_t=beta_t / h,
             friction_coefficient=fc,
             slip_bound=s,
             quadrature_degree=cforms.quadrature_degree(self.scene.degree),
             dim=msh.topology.dim,
         )
+
+    def _beta_weight(self, young: npt.NDArray[np.float64]) -> fem.Function:
+        """``E/E_max`` on the local cells (DG0), the weight of a ``local`` β (collective)."""
+        Q0 = fem.functionspace(self.fm.msh, ("DG", 0))
+        w = fem.Function(Q0, name="beta_weight")
+        w.x.array[Q0.dofmap.list[:len(young), 0]] = young / self.young_max
+        return w
 
     def warn(self, msg: str) -> None:
         """Log a warning of the scene (set-up or run) and keep it for ``summary.json``."""
@@ -336,8 +352,9 @@ class MechanicsModel:
             msg = (f"a fracture runs in rock of Young's modulus {softest:.3g} Pa, "
                    f"{self.young_max / softest:.3g} times softer than the largest "
                    f"({self.young_max:.3g} Pa) that the default beta_n, beta_t are multiples "
-                   f"of: the contact Newton may stall there; give contact.beta_n and "
-                   f"contact.beta_t (e.g. {Contact.BETA_N_PER_E:g} and "
+                   f"of: the contact Newton may stall there; set contact.beta_scaling: local "
+                   f"(each face's beta scaled by its rock's modulus), or give contact.beta_n "
+                   f"and contact.beta_t (e.g. {Contact.BETA_N_PER_E:g} and "
                    f"{Contact.BETA_T_PER_E:g} times the rock's modulus at the fractures)")
             self.warn(msg)
 
@@ -352,7 +369,8 @@ class MechanicsModel:
         beta_t0 = self.beta0[1] if c.friction != "frictionless" else None
         poisson = _cell_values(self.fm.msh, self.scene.material.poisson)
         rho = symmetric_nitsche_ratio(self.fm, self.scene.degree, young, poisson,
-                                      self.beta0[0], beta_t0, c.traction_side)
+                                      self.beta0[0], beta_t0, c.traction_side,
+                                      local=self.beta_weight is not None)
         self.coercivity_ratio = rho
         if rho >= 1.0:
             msg = (f"contact.theta = 1 (symmetric Nitsche) is below its coercivity bound on this "
@@ -922,6 +940,11 @@ def _cell_values(msh: dolfinx.mesh.Mesh, expr: Expression, t: float = 0.0):
         return np.full(n, expr.value(t))
     x = dolfinx.mesh.compute_midpoints(msh, msh.topology.dim, np.arange(n, dtype=np.int32))
     return expr(x, t)
+
+
+def _face_max(w: fem.Function):
+    """``max(w⁺, w⁻)`` on an interior facet."""
+    return ufl.max_value(w("+"), w("-"))
 
 
 def _plus(f):

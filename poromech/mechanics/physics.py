@@ -361,6 +361,7 @@ class MechanicsPhysics:
             "dofs": self.model.dof_count(),
             "beta_n": self.model.beta0[0],
             "beta_t": self.model.beta0[1],
+            "beta_scaling": "local" if self.model.beta_weight is not None else "largest",
         }
         if self.model.beta_sm0 is not None:
             out["beta_sm_n"], out["beta_sm_t"] = self.model.beta_sm0

@@ -313,6 +313,14 @@ class Contact:
         default="plus",
         metadata=doc("side whose stress defines T(u): plus (as in the paper) or mean of both"),
     )
+    beta_scaling: Literal["largest", "local"] = field(
+        default="largest",
+        metadata=doc("largest: β_n⁰ and β_τ⁰ act on every face, as in the paper; local: they "
+                     "are the values at the largest Young's modulus E_max and each face takes "
+                     "β⁰ E_σ/E_max, E_σ the larger modulus of its two cells, so that a fracture "
+                     "in soft rock is penalized as much relative to its rock as one in the "
+                     "stiffest (docs/mechanics.md)"),
+    )
 
 
 @dataclass(frozen=True)

@@ -49,6 +49,7 @@ _CONTACT_USE = {
     "beta_sm_n": ("mixed",),
     "beta_sm_t": ("mixed",),
     "traction_side": ("nitsche", "mean_nitsche", "stabilized_mixed"),
+    "beta_scaling": ("nitsche", "mean_nitsche", "stabilized_mixed"),
 }
 
 #: Solver keys of the contact solve only (``line_search``, ``reuse_jacobian`` and the ``petsc``
@@ -148,6 +149,9 @@ def _conditional(scene: Scene, key: str, has_fractures: bool, dim: int = 2) -> s
             return f"contact.friction is {c.friction} (the coefficient is Coulomb's)"
         if rest == "slip_bound" and c.friction != "tresca":
             return f"contact.friction is {c.friction} (the slip bound is Tresca's)"
+        if rest == "beta_scaling" and scene.material is not None \
+                and scene.material.young.is_uniform:
+            return "material.young is uniform (every face already has the largest modulus)"
     if head == "solver" and mechanics and rest in _NEWTON_KEYS:
         if not contact:
             return "no contact conditions: the mechanics is one linear solve per step"
