@@ -461,6 +461,41 @@ if MPI.COMM_WORLD.rank == 0:
     assert err.max() < 1e-8
 
 
+@pytest.mark.mpi
+def test_local_beta_on_three_ranks_equals_one_rank(tmp_path):
+    """``contact.beta_scaling: local`` reads the modulus of both cells of a face, a ghost cell
+    where a process boundary runs along the fracture (3 faces on 3 ranks; none on 2): the
+    soft-layer network, its modulus growing with z so that the two cells of a face differ, on
+    3 ranks writes the states and numbers of 1 rank (MUMPS). It fails when the ghost cells'
+    weights are left at zero."""
+    sets = COARSE + ["material.young=where(z > 1.0, E, E / 1e4) * (1 + 3 * z)",
+                     "contact.beta_scaling=local",
+                     "solver.linear_solver=direct"]
+    run_scene(load_scene(NETWORK, sets), tmp_path / "one")
+    code = f"""
+import json
+import dolfinx_solver
+from mpi4py import MPI
+from poromech.run import run_scene
+from poromech.scene.loading import load_scene
+run_scene(load_scene({str(NETWORK)!r}, {sets!r}), {str(tmp_path / "two")!r})
+if MPI.COMM_WORLD.rank == 0:
+    print(json.dumps({{"ok": True}}))
+"""
+    run_parallel(code, nprocs=3)
+
+    def key(r):
+        return (float(r["time"]), r["fracture"], *(round(float(r[k]), 9) for k in "xyz"))
+
+    one, two = (sorted(read_table(tmp_path / n / "fractures.csv"), key=key)
+                for n in ("one", "two"))
+    assert [key(r) for r in one] == [key(r) for r in two]
+    assert [r["state"] for r in one] == [r["state"] for r in two]
+    a = np.array([[float(r[k]) for k in NUMBERS] for r in one])
+    b = np.array([[float(r[k]) for k in NUMBERS] for r in two])
+    assert (np.abs(b - a) / (np.abs(a) + np.abs(a).max(axis=0))).max() < 1e-8
+
+
 def test_iterates_keep_the_dirichlet_values_and_the_residual_its_bits(monkeypatch):
     """On the iterative path each Newton direction is set to ``x - g`` on the Dirichlet dofs
     (the exact solution of the Jacobian's identity rows, which GMRES only approximates), so
