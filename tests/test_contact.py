@@ -261,7 +261,7 @@ def face_beta_n(model, fm) -> float:
     return comm.allreduce(total, op=MPI.SUM) / comm.allreduce(area, op=MPI.SUM)
 
 
-def test_local_beta_scaling_takes_the_modulus_of_the_rock_at_each_face(tmp_path):
+def test_local_beta_scaling_takes_the_modulus_of_the_rock_at_each_face():
     """The crack lies in rock of 1e8 Pa under rock of 1e11 Pa (y > 1.5). ``largest``: its faces
     take β_n⁰ = 250 E_max; ``local``: 250 E_σ = 250 × 1e8 Pa, no soft-rock warning, and the
     run gives the jumps and tractions of ``largest`` with β⁰ given as 250 and 10 × 1e8 Pa (the
