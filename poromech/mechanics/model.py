@@ -39,7 +39,7 @@ from poromech.mesh.fractured import (
     fracture_measure,
 )
 from poromech.scene.expressions import Expression
-from poromech.scene.schema import Contact, Scene
+from poromech.scene.schema import NITSCHE_FORMULATIONS, Contact, Scene
 
 __all__ = ["FACE_FIELDS", "FACE_FIELDS_3D", "IMBALANCE_LIMIT", "MechanicsModel", "PressureCoupling",
            "SLIP_TOLERANCE", "STATE_NAMES"]
@@ -260,7 +260,7 @@ class MechanicsModel:
             beta = self.beta_sm0
         self.warnings: list[str] = []
         self.coercivity_ratio: float | None = None  # of symmetric Nitsche (θ = 1) only
-        nitsche_like = formulation in ("nitsche", "mean_nitsche", "stabilized_mixed")
+        nitsche_like = formulation in NITSCHE_FORMULATIONS
         #: ``E/E_max`` per local cell (DG0) when ``contact.beta_scaling`` is ``local``, else None.
         self.beta_weight = self._beta_weight(young) if nitsche_like \
             and c.beta_scaling == "local" else None

@@ -43,6 +43,8 @@ __all__ = [
 Expr = Expression
 Formulation = Literal["none", "mixed", "stabilized_mixed", "mean_nitsche", "nitsche"]
 Friction = Literal["coulomb", "tresca", "frictionless"]
+#: The formulations with Nitsche terms (θ, β_n, β_τ): the others are ``mixed`` and ``none``.
+NITSCHE_FORMULATIONS = ("nitsche", "mean_nitsche", "stabilized_mixed")
 
 
 def doc(text: str, unit: str = "", **checks) -> dict:

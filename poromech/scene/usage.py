@@ -23,7 +23,7 @@ import numpy as np
 
 from poromech.errors import ConfigError
 from poromech.geometry.plane import PlaneGeometry
-from poromech.scene.schema import Scene
+from poromech.scene.schema import NITSCHE_FORMULATIONS, Scene
 
 __all__ = ["Unused", "check_keys_used", "given_keys", "unused_keys"]
 
@@ -43,13 +43,13 @@ _OTHER_PHYSICS = {
 
 #: Contact keys and the formulations that use them (besides ``formulation`` and ``friction``).
 _CONTACT_USE = {
-    "theta": ("nitsche", "mean_nitsche", "stabilized_mixed"),
-    "beta_n": ("nitsche", "mean_nitsche", "stabilized_mixed"),
-    "beta_t": ("nitsche", "mean_nitsche", "stabilized_mixed"),
+    "theta": NITSCHE_FORMULATIONS,
+    "beta_n": NITSCHE_FORMULATIONS,
+    "beta_t": NITSCHE_FORMULATIONS,
     "beta_sm_n": ("mixed",),
     "beta_sm_t": ("mixed",),
-    "traction_side": ("nitsche", "mean_nitsche", "stabilized_mixed"),
-    "beta_scaling": ("nitsche", "mean_nitsche", "stabilized_mixed"),
+    "traction_side": NITSCHE_FORMULATIONS,
+    "beta_scaling": NITSCHE_FORMULATIONS,
 }
 
 #: Solver keys of the contact solve only (``line_search``, ``reuse_jacobian`` and the ``petsc``
