@@ -146,7 +146,8 @@ def run(case: Case, formulation: str, theta: int, degree: int, line_search="cont
             row["reason"] = f"{type(err).__name__}: {str(err).splitlines()[0][:60]}"
         row["time"] = time.perf_counter() - t0
         records = run.records
-        row["iterations"] = sum(r["iterations"] for r in records)
+        row["per_step"] = [r["iterations"] for r in records]
+        row["iterations"] = sum(row["per_step"])
         row["face_iterations"] = sum(r.get("face_iterations", 0) for r in records)
         row["reason"] = row["reason"] or (records[-1]["reason"] if records else "")
         if run.physics is None:  # failed while setting up
@@ -157,14 +158,6 @@ def run(case: Case, formulation: str, theta: int, degree: int, line_search="cont
     if case.exact and row["converged"]:
         err = jump_errors(u, fm, exact_jump(scene))
         row["l2"] = err["l2"] if err["norm"] > 1e-12 else err["max"]
-    return row
-    model = run.physics.model
-    u = model.u.x.array
-    row["nan"] = bool(comm.allreduce(not np.all(np.isfinite(u)), op=MPI.LOR))
-    if case.exact and row["converged"]:
-        err = jump_errors(model.u, fm, exact_jump(scene))
-        row["l2"] = err["l2"] if err["norm"] > 1e-12 else err["max"]
-    run.close()
     return row
 
 

@@ -302,6 +302,35 @@ def test_p1_in_a_nearly_incompressible_rock_is_warned_of_locking():
         assert any("P1 displacements lock" in m for m in model.warnings) == warned, sets
 
 
+def test_pointwise_coulomb_nitsche_near_incompressibility_is_warned():
+    """At ν = 0.4999 the six-fracture scene (P2, Coulomb F = 0.5) fails with pointwise
+    ``nitsche`` θ = -1: its friction bound takes σ_n, where λ div u weighs 4,999 μ, and one point
+    switches between stick and slip at every iteration (steps of about 0.01), silently. Warned
+    from ν = 0.4995, where it failed too; θ = 0 and ``mean_nitsche`` converge there in 7 and 3
+    Newton iterations (docs/mechanics/incompressible.md). Not warned at 0.499 (converged in 9),
+    with θ = 0, Tresca, F = 0 or the face means."""
+    from poromech.errors import SolverError
+
+    cases = ((["material.poisson=0.4995"], True), (["material.poisson=0.499"], False),
+             (["material.poisson=0.4999", "contact.theta=1"], True),
+             (["material.poisson=0.4999", "contact.theta=0"], False),
+             (["material.poisson=0.4999", "contact.friction=tresca", "contact.slip_bound=1e6"],
+              False),
+             (["material.poisson=0.4999", "contact.friction_coefficient=0"], False),
+             (["material.poisson=0.4999", "contact.formulation=mean_nitsche"], False))
+    for sets, warned in cases:
+        _, _, model = model_of("six_fractures_mechanics", *sets)
+        said = [m for m in model.warnings if "between stick and slip" in m]
+        assert len(said) == int(warned), sets
+    one_step = ["material.poisson=0.4999", "time.final=100", "time.steps=1", "time.max_cuts=0"]
+    with pytest.raises(SolverError) as failed:
+        solve("six_fractures_mechanics", *one_step)
+    assert "DIVERGED_MAX_IT" in failed.value.reason
+    for sets, most in ((["contact.theta=0"], 7), (["contact.formulation=mean_nitsche"], 3)):
+        records = solve("six_fractures_mechanics", *one_step, *sets)[3]
+        assert records[0]["converged"] and records[0]["iterations"] <= most, sets
+
+
 def test_symmetric_nitsche_warns_below_its_coercivity_bound(caplog):
     """θ = 1 with β_τ⁰ = 1.6 E (the issue's 40 GPa on E = 25 GPa) is below the bound: warned;
     θ = 1 at β⁰ = 100 E and θ = -1 at any β⁰ are not."""

@@ -94,6 +94,16 @@ SMALL_BETA_T_RATIO_3D = 1 / 25
 #: Poisson's ratio from which P1 displacements are warned of volumetric locking (the jump error
 #: of the inclined crack: 0.04 at ν = 0.25, 0.17 at 0.49, 0.5 at 0.499; docs/mechanics.md).
 LOCKING_POISSON = 0.49
+#: Poisson's ratio from which pointwise ``nitsche`` with Coulomb friction and θ ≠ 0 is warned
+#: that its Newton may cycle: the friction bound ``F [σ_n(u) - β_n [[u]]_n]_-`` takes the normal
+#: stress at each point, in which ``λ div u`` weighs ``λ/μ = 2ν/(1 - 2ν)`` times the shear terms
+#: (999 at 0.4995). The six-fracture scene (P2, θ = -1, F = 0.5) converges at 0.499 (9 Newton
+#: iterations in its first step) and fails from 0.4995 (one point switching between stick and
+#: slip at every iteration, steps of about 0.01, also at dt/16); configs/network3d.yaml fails at
+#: 0.4999. θ = 0, Tresca, frictionless, ``stabilized_mixed`` and ``mean_nitsche`` converge there
+#: up to 0.49999 (``mixed`` in 2D; in 3D it fails at 0.4995 and 0.4999:
+#: docs/mechanics/incompressible.md).
+INCOMPRESSIBLE_FRICTION_POISSON = 0.4995
 #: Components of an initial stress by dimension, as ``(i, j)`` in the order of the scene key.
 _STRESS_INDEX = {2: ((0, 0), (1, 1), (0, 1)),
                  3: ((0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1))}
@@ -273,6 +283,9 @@ class MechanicsModel:
                 self._check_small_beta()
             if nitsche_like and self.scene.degree == 2:
                 self._check_small_beta_t()
+        if (formulation == "nitsche" and c.friction == "coulomb" and c.theta != 0
+                and c.friction_coefficient > 0):
+            self._check_incompressible_friction()
         beta_n, beta_t = fem.Constant(msh, beta[0]), fem.Constant(msh, beta[1])
         if self.beta_weight is not None:
             beta_n, beta_t = (b * _face_max(self.beta_weight) for b in (beta_n, beta_t))
@@ -326,15 +339,35 @@ class MechanicsModel:
                        f"linear solves may fail (configs/network3d.yaml failed at 1/83 and 1/250, "
                        f"converged at 1/25 and with theta 0; docs/mechanics3d.md)")
 
+    def _largest_poisson(self) -> float:
+        """The largest Poisson's ratio of the mesh at t = 0 (collective)."""
+        nu = _cell_values(self.fm.msh, self.scene.material.poisson)
+        return self.fm.msh.comm.allreduce(float(nu.max(initial=0.0)), op=MPI.MAX)
+
     def _check_locking(self) -> None:
         """Warn of P1 displacements in a nearly incompressible rock (collective)."""
-        nu = _cell_values(self.fm.msh, self.scene.material.poisson)
-        largest = self.fm.msh.comm.allreduce(float(nu.max(initial=0.0)), op=MPI.MAX)
+        largest = self._largest_poisson()
         if largest >= LOCKING_POISSON:
             msg = (f"degree 1 with Poisson's ratio up to {largest:g}: P1 displacements lock as ν "
                    "→ 0.5 (jumps too small: error 0.17 at ν = 0.49 and 0.5 at 0.499, against "
                    "0.04 at 0.25, docs/mechanics.md); use degree 2")
             self.warn(msg)
+
+    def _check_incompressible_friction(self) -> None:
+        """Warn of a cycling Newton of pointwise Coulomb Nitsche near incompressibility.
+
+        From :data:`INCOMPRESSIBLE_FRICTION_POISSON` (collective).
+        """
+        largest = self._largest_poisson()
+        if largest >= INCOMPRESSIBLE_FRICTION_POISSON:
+            self.warn(f"material.poisson up to {largest:g} with contact.formulation nitsche, "
+                      f"theta {self.scene.contact.theta:g} and Coulomb friction: the friction "
+                      f"bound takes the normal stress at each point, where lambda div u weighs "
+                      f"{2 * largest / (1 - 2 * largest):.3g} times mu, and the contact Newton "
+                      f"may switch a point between stick and slip at every iteration and fail "
+                      f"(the six-fracture scene did from 0.4995); contact.theta 0, or "
+                      f"contact.formulation stabilized_mixed or mean_nitsche converge there in "
+                      f"2D and 3D (docs/mechanics/incompressible.md)")
 
     def _check_soft_fractures(self, young: npt.NDArray[np.float64]) -> None:
         """Warn when a default β⁰ is far stiffer than the rock at some fracture face (collective).
