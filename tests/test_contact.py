@@ -308,7 +308,8 @@ def test_pointwise_coulomb_nitsche_near_incompressibility_is_warned():
     switches between stick and slip at every iteration (steps of about 0.01), silently. Warned
     from ν = 0.4995, where it failed too; θ = 0 and ``mean_nitsche`` converge there in 7 and 3
     Newton iterations (docs/mechanics/incompressible.md). Not warned at 0.499 (converged in 9),
-    with θ = 0, Tresca, F = 0 or the face means."""
+    with θ = 0, Tresca, F = 0 or the face means. The uncondensed ``mixed`` of 3D (failed on
+    configs/network3d.yaml at 0.4995 and 0.4999) is warned of too, the condensed one of 2D not."""
     from poromech.errors import SolverError
 
     cases = ((["material.poisson=0.4995"], True), (["material.poisson=0.499"], False),
@@ -322,6 +323,14 @@ def test_pointwise_coulomb_nitsche_near_incompressibility_is_warned():
         _, _, model = model_of("six_fractures_mechanics", *sets)
         said = [m for m in model.warnings if "between stick and slip" in m]
         assert len(said) == int(warned), sets
+    # mixed: condensed in 2D (converged at every ratio), uncondensed in 3D (failed at 0.4999)
+    for name, sets, warned in (
+            ("six_fractures_mechanics", [], False),
+            ("network3d", ["mesh.size=0.6", "mesh.fracture_size=0.3", "degree=1"], True)):
+        _, _, model = model_of(name, "contact.formulation=mixed", "material.poisson=0.4999",
+                               *sets)
+        said = [m for m in model.warnings if "mixed in 3D" in m]
+        assert len(said) == int(warned), name
     one_step = ["material.poisson=0.4999", "time.final=100", "time.steps=1", "time.max_cuts=0"]
     with pytest.raises(SolverError) as failed:
         solve("six_fractures_mechanics", *one_step)
