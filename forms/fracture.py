@@ -66,6 +66,11 @@ def slip(w, frame, w_ref=None):
     return s - tangential(jump(w_ref), frame) if w_ref is not None else s
 
 
+def face_max(w):
+    """``max(w⁺, w⁻)`` of a cellwise quantity on an interior facet."""
+    return ufl.max_value(w("+"), w("-"))
+
+
 def magnitude(x):
     """``|x|`` of a tangential quantity (a scalar in 2D, a vector in 3D)."""
     return abs(x) if x.ufl_shape == () else ufl.sqrt(ufl.inner(x, x))

@@ -27,7 +27,7 @@ from dolfinx import fem
 from mpi4py import MPI
 
 from poromech.forms.elasticity import epsilon, sigma
-from poromech.forms.fracture import tangent
+from poromech.forms.fracture import face_max, tangent
 from poromech.mesh.fractured import FRACTURE_TAG, FracturedMesh, face_size, fracture_measure
 
 __all__ = ["symmetric_nitsche_ratio"]
@@ -103,7 +103,7 @@ def symmetric_nitsche_ratio(fm: FracturedMesh, degree: int, young: npt.ArrayLike
     h = face_size(msh)("+")
     if local:
         young_max = msh.comm.allreduce(float(np.max(young, initial=0.0)), op=MPI.MAX)
-        scale = ufl.max_value(E("+"), E("-")) / young_max
+        scale = face_max(E) / young_max
         beta_n0 = beta_n0 * scale
         beta_t0 = None if beta_t0 is None else beta_t0 * scale
     b = fem.form(_traction_form(u, v, n, h, E, nu, side, beta_n0, beta_t0) * dG)

@@ -29,7 +29,13 @@ from poromech.forms.elasticity import (
     epsilon,
     initial_stress_form,
 )
-from poromech.forms.fracture import FractureKinematics, magnitude, normal_jump, slip
+from poromech.forms.fracture import (
+    FractureKinematics,
+    face_max,
+    magnitude,
+    normal_jump,
+    slip,
+)
 from poromech.mechanics.coercivity import symmetric_nitsche_ratio
 from poromech.mesh.fractured import (
     FRACTURE_TAG,
@@ -290,7 +296,7 @@ class MechanicsModel:
             self._check_incompressible_friction(formulation)
         beta_n, beta_t = fem.Constant(msh, beta[0]), fem.Constant(msh, beta[1])
         if self.beta_weight is not None:
-            beta_n, beta_t = (b * _face_max(self.beta_weight) for b in (beta_n, beta_t))
+            beta_n, beta_t = (b * face_max(self.beta_weight) for b in (beta_n, beta_t))
         return cforms.ContactParameters(
             formulation=formulation,
             friction=c.friction,
@@ -982,11 +988,6 @@ def _cell_values(msh: dolfinx.mesh.Mesh, expr: Expression, t: float = 0.0):
         return np.full(n, expr.value(t))
     x = dolfinx.mesh.compute_midpoints(msh, msh.topology.dim, np.arange(n, dtype=np.int32))
     return expr(x, t)
-
-
-def _face_max(w: fem.Function):
-    """``max(w⁺, w⁻)`` on an interior facet."""
-    return ufl.max_value(w("+"), w("-"))
 
 
 def _plus(f):
