@@ -6,6 +6,9 @@
   parallel to the shear with a known profile; Tresca and Coulomb below the shear slip against a
   uniform friction traction (the same profile for the shear minus that traction); Coulomb above
   it sticks (no jump at all, the uniform far field is in the finite element space).
+* A block held on a fault by friction alone (configs/sliding_block3d.yaml): the face tractions
+  carry the whole load below the limit the friction cone sets, and beyond it the run fails
+  saying which piece only contact holds.
 """
 
 from __future__ import annotations
@@ -174,6 +177,52 @@ def test_coulomb_above_the_shear_sticks(tmp_path):
     assert np.max(np.abs(out["jumps"])) < 1e-8 * np.max(np.abs(slip))
     assert np.all(out["codes"] == 1)  # in contact, stick
     assert written_states(SHEAR, sets, tmp_path) == {"stick"}
+
+
+#: configs/sliding_block3d.yaml: the upper block of a box cut through by a fault of slope 0.2
+#: is held by nothing but Coulomb friction (F = 0.6) under a top traction (a t, 0, -σ).
+BLOCK = ROOT / "configs" / "sliding_block3d.yaml"
+#: The shear the block holds at most: the resultant (a, 0, -σ) on the fault leaves the friction
+#: cone, (a - sσ)/(s a + σ) = F with s = 0.2, at a = σ (F + s)/(1 - F s).
+BLOCK_LIMIT = 1.0e6 * (0.6 + 0.2) / (1.0 - 0.6 * 0.2)
+
+
+def block_scene(a, formulation):
+    """The block scene loaded in one step from rest to the shear traction ``a`` (Pa)."""
+    return load_scene(BLOCK, [f"parameters.a={a!r}", f"contact.formulation={formulation}",
+                              "time.final=1.0", "time.steps=1", "time.max_cuts=0",
+                              "output.xdmf=false"])
+
+
+@pytest.mark.parametrize("formulation", ["nitsche", "mean_nitsche"])
+def test_a_block_held_by_friction_balances_the_load_up_to_its_limit(formulation, monkeypatch):
+    """Below the limit the written face tractions carry the whole load (to rounding: the
+    contact residual tested with a translation of the block is their sum); beyond it there is
+    no equilibrium, and the failure says which piece only contact holds."""
+    from poromech.errors import SolverError
+    from poromech.mechanics.physics import MechanicsPhysics
+
+    a = 0.5 * BLOCK_LIMIT
+    forces = []
+    accept = MechanicsPhysics.accept
+
+    def balance(physics, t):  # the written (not yet accepted) face tractions
+        v, faces = physics.model.face_fields(), physics.fm.fractures
+        traction = v["traction_n"][:, None] * faces.normal + np.column_stack(
+            [v[f"traction_t{c}"] for c in "xyz"])
+        forces.append((traction * faces.measure[:, None]).sum(axis=0))
+        states = set(physics.model.states(v).tolist())
+        assert states >= {1, 2}  # stick and slip on the fault
+        accept(physics, t)
+
+    monkeypatch.setattr(MechanicsPhysics, "accept", balance)
+    with Run(block_scene(a, formulation)) as run:
+        run.execute()
+    assert np.allclose(forces[-1], [a, 0.0, -1.0e6], rtol=0.0, atol=1e-6)
+    with pytest.raises(SolverError) as failed:
+        with Run(block_scene(1.1 * BLOCK_LIMIT, formulation)) as run:
+            run.execute()
+    assert "only contact holds piece 2 of 2 (free in xyz)" in str(failed.value)
 
 
 def test_symmetric_nitsche_with_friction_in_3d():

@@ -124,8 +124,12 @@ def floating_pieces(scene: Scene, fm: FracturedMesh) -> dict[int, tuple[str, boo
     return out
 
 
-def check_pieces(scene: Scene, fm: FracturedMesh) -> None:
+def check_pieces(scene: Scene, fm: FracturedMesh) -> list[str]:
     """Refuse a piece held by nothing; warn of one held only by contact.
+
+    Returns:
+        The pieces held only by contact with friction ("piece k of n"): a load beyond what
+        their friction can hold has no equilibrium, which a failed Newton then says.
 
     Raises:
         ConfigError: Open fractures (``contact.formulation`` none) and a floating piece: its
@@ -136,7 +140,7 @@ def check_pieces(scene: Scene, fm: FracturedMesh) -> None:
     """
     floating = floating_pieces(scene, fm)
     if not floating:
-        return
+        return []
     if scene.contact.formulation == "none":
         raise ConfigError(f"scene key 'boundary_conditions': the fractures cut the body into "
                           f"{len(fm.pieces)} pieces and {next(iter(floating.values()))[0]}: "
@@ -145,6 +149,7 @@ def check_pieces(scene: Scene, fm: FracturedMesh) -> None:
     c = scene.contact
     frictionless = c.friction == "frictionless" or (c.friction == "coulomb"
                                                     and c.friction_coefficient == 0)
+    held = []
     for k, (text, unheld) in floating.items():
         free = fm.unblocked[k] if k < len(fm.unblocked) else 0
         if frictionless and unheld and free:  # a block on a frictionless cut slid 3 µm - 3.6 mm
@@ -159,7 +164,13 @@ def check_pieces(scene: Scene, fm: FracturedMesh) -> None:
                         "then not determined); hold it by a displacement condition or give "
                         "friction", text)
         else:
-            log.warning("%s: only contact holds it", text)
+            hint = ("" if c.formulation != "nitsche" else
+                    "; pointwise nitsche's Newton creeps there (87 iterations for a block on a "
+                    "fault at 0.8 of its limit load, P2), mean_nitsche, stabilized_mixed and "
+                    "mixed with degree 2 take 17-19 (docs/mechanics3d.md)")
+            log.warning("%s: only contact holds it%s", text, hint)
+            held.append(f"{text.split(' (', 1)[0]} (free in {text.rsplit(' ', 1)[1]})")
+    return held
 
 
 def formulation_options(formulation: str, dim: int = 2) -> dict:
@@ -203,7 +214,7 @@ class MechanicsPhysics:
                  pressures: PressureCoupling | None = None):
         self.scene, self.timer, self.fm = scene, timer, fm
         self.writes_initial_state = False
-        check_pieces(scene, fm)
+        self._held_by_friction = check_pieces(scene, fm)
         singular = scene.contact.formulation == "mixed" and scene.degree == 1
         if singular:
             log.warning("mixed with P1 displacements is not inf-sup stable: multipliers are not "
@@ -424,6 +435,9 @@ class MechanicsPhysics:
             message = (f"Newton did not converge at t = {t:g} s: {rec.reason} after "
                        f"{rec.iterations} iterations{linear}; residual history "
                        + quoted_history(rec.residuals))
+            if self._held_by_friction:
+                message += (f"; only contact holds {', '.join(self._held_by_friction)}: a load "
+                            "beyond what its friction can hold has no equilibrium")
         return StepResult(rec.converged, record, message, rec.reason, rec.residuals)
 
     def accept(self, t: float) -> None:
