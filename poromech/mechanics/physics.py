@@ -128,8 +128,9 @@ def check_pieces(scene: Scene, fm: FracturedMesh) -> list[str]:
     """Refuse a piece held by nothing; warn of one held only by contact.
 
     Returns:
-        The pieces held only by contact with friction ("piece k of n"): a load beyond what
-        their friction can hold has no equilibrium, which a failed Newton then says.
+        The pieces held only by contact with friction, as "piece k of n (free in xyz)" (the
+        components no displacement condition holds): a load beyond what their friction can
+        hold has no equilibrium, which the message of a Newton that fails then says.
 
     Raises:
         ConfigError: Open fractures (``contact.formulation`` none) and a floating piece: its
