@@ -26,12 +26,11 @@ Run (about 25 minutes on one core)::
 from __future__ import annotations
 
 import argparse
-import csv
 import datetime
 
 import dolfinx_solver  # noqa: F401
 
-from mechanics_robustness import OUT, VARIANTS, Case, cell, label, run
+from mechanics_robustness import OUT, VARIANTS, Case, cell, label, run, write_csv
 from mpi4py import MPI
 
 POISSON = (0.25, 0.49, 0.499, 0.4995, 0.4999, 0.49999)
@@ -88,13 +87,7 @@ def write(rows: list[dict]) -> None:
     OUT.mkdir(parents=True, exist_ok=True)
     keys = ["scene", "poisson", "formulation", "theta", "degree", "converged", "reason",
             "iterations", "per_step", "face_iterations", "l2", "time"]
-    with open(OUT / "incompressible.csv", "w", newline="") as fh:
-        w = csv.DictWriter(fh, keys, extrasaction="ignore")
-        w.writeheader()
-        for r in rows:
-            out = {k: (f"{r[k]:.4g}" if isinstance(r[k], float) else r[k]) for k in keys}
-            out["per_step"] = "/".join(map(str, r.get("per_step", [])))
-            w.writerow(out)
+    write_csv(OUT / "incompressible.csv", [{"per_step": [], **r} for r in rows], keys)
     heads = [label(*v) for v in VARIANTS]
     lines = ["# Contact towards incompressibility", "",
              f"Generated {datetime.date.today()} by `python scripts/mechanics_incompressible.py`"

@@ -204,12 +204,22 @@ def main() -> None:
         return
     keys = ["case", "formulation", "theta", "degree", "line_search", "converged", "reason",
             "iterations", "face_iterations", "l2", "nan", "time"]
-    with open(OUT / "robustness.csv", "w", newline="") as fh:
+    write_csv(OUT / "robustness.csv", rows + ls_rows, keys)
+    write_markdown(rows, ls_rows)
+
+
+def write_csv(path: Path, rows: list[dict], keys: list[str]) -> None:
+    """The ``keys`` of each row: floats to 4 significant digits, lists joined by ``/``."""
+    def text(v):
+        if isinstance(v, float):
+            return f"{v:.4g}"
+        return "/".join(map(str, v)) if isinstance(v, list) else v
+
+    with open(path, "w", newline="") as fh:
         w = csv.DictWriter(fh, keys)
         w.writeheader()
-        for r in rows + ls_rows:
-            w.writerow({k: (f"{r[k]:.4g}" if isinstance(r[k], float) else r[k]) for k in keys})
-    write_markdown(rows, ls_rows)
+        for r in rows:
+            w.writerow({k: text(r[k]) for k in keys})
 
 
 def write_markdown(rows: list[dict], ls_rows: list[dict]) -> None:
