@@ -218,7 +218,8 @@ def test_network_across_a_soft_layer_converges_with_local_beta(tmp_path):
 
 
 def test_network_mean_nitsche_agrees():
-    """mean_nitsche on the same mesh: Newton within 15 per step, jumps within 3% of nitsche's."""
+    """mean_nitsche on the same mesh: Newton within 15 per step, jumps within 3% of nitsche's.
+    The contact points map to their faces (``point_faces``): a face's branch is its state."""
     from poromech.run import Run
     from poromech.verification.jumps import face_quadrature, jump_values
 
@@ -226,8 +227,17 @@ def test_network_mean_nitsche_agrees():
     for form in ("nitsche", "mean_nitsche"):
         with Run(load_scene(NETWORK, COARSE + [f"contact.formulation={form}"])) as run:
             summary = run.execute()
+            model = run.physics.model
             q = face_quadrature(run.physics.fm, 6)
-            jumps[form] = jump_values(run.physics.model.u, q)
+            jumps[form] = jump_values(model.u, q)
+            faces, codes = model.point_faces(), model.active_set()
+            if form == "mean_nitsche":  # one point per face: its branch is the face's state
+                written = model.states(model.face_fields())
+                branch = np.select([codes == 1, codes == 3], [1, 2], 0)
+                assert sorted(faces) == list(range(len(written)))
+                assert np.count_nonzero(branch != written[faces]) <= 2
+            else:  # the Gauss points of each face
+                assert faces.min() >= 0 and np.all(np.bincount(faces) == faces.size // 138)
         its[form] = [s["iterations"] for s in summary["solves"]]
     diff = np.sqrt(np.sum(q.weights * np.sum((jumps["mean_nitsche"] - jumps["nitsche"]) ** 2, 1))
                    / np.sum(q.weights * np.sum(jumps["nitsche"] ** 2, 1)))
@@ -335,6 +345,75 @@ def test_network_p_multigrid_falls_back_to_sor(tmp_path, monkeypatch):
         states[name] = [r["state"] for r in read_table(tmp_path / name / "fractures.csv")]
     assert summary["linear_solver"]["p_multigrid"]["fine_smoother"] == "richardson/sor"
     assert states["pmg"] == states["direct"]
+
+
+#: F = 2: the second shear step of the coarse network fails, its states cycling.
+HIGH_FRICTION = COARSE + ["contact.friction_coefficient=2", "time.max_cuts=0"]
+
+
+@pytest.fixture(scope="module")
+def cycling_failure():
+    """The failure of the high-friction run on 1 rank: its message, the faces whose points
+    switched twice or more in the last iterations, their fractures and the fracture names."""
+    from poromech.errors import SolverError
+    from poromech.run import Run
+
+    with Run(load_scene(NETWORK, HIGH_FRICTION)) as run:
+        with pytest.raises(SolverError) as failed:
+            run.execute()
+        physics = run.physics
+        cycling = np.unique(physics.model.point_faces()[physics.solver.recent_switches >= 2])
+        return {"message": str(failed.value), "faces": cycling,
+                "fractures": physics.fm.fractures.fracture[cycling],
+                "names": physics.fm.geometry.fracture_names}
+
+
+def test_a_newton_that_cycles_says_where(cycling_failure):
+    """Coulomb friction F = 2: the second shear step has no converging Newton on this network
+    (every formulation and step cut failed on the finer meshes as well; F = 1 converges), the
+    contact states of a few faces cycle. The failure names the fractures of those faces, most
+    first, with as many faces as switched twice or more in the last iterations, and recalls that
+    above F = 1 the step's problem may have several solutions or none."""
+    import re
+
+    from poromech.mechanics.newton import RECENT_ITERATIONS
+
+    message, faces = cycling_failure["message"], cycling_failure["faces"]
+    fractures, names = cycling_failure["fractures"], cycling_failure["names"]
+    assert "at t = 3 s" in message
+    found = re.search(rf"contact states cycle \(switched twice or more in the last "
+                      rf"{RECENT_ITERATIONS} iterations\) on (\d+) faces?: ([^;]+);", message)
+    assert found is not None, message
+    named = {n: int(c) for n, c in (part.split() for part in found.group(2).split(", "))}
+    assert int(found.group(1)) == sum(named.values()) == faces.size > 0
+    assert named == {names[k]: int(np.sum(fractures == k)) for k in set(fractures.tolist())}
+    assert list(named.values()) == sorted(named.values(), reverse=True)
+    assert "friction_coefficient 2 > 1" in message and "Klarbring 1990" in message
+
+
+@pytest.mark.mpi
+def test_a_newton_that_cycles_says_the_same_on_two_ranks(cycling_failure):
+    """The high-friction failure on 2 ranks: the same message as on 1 (the faces counted once,
+    by their owners)."""
+    code = f"""
+import json
+import dolfinx_solver
+from mpi4py import MPI
+from poromech.errors import SolverError
+from poromech.run import Run
+from poromech.scene.loading import load_scene
+with Run(load_scene({str(NETWORK)!r}, {HIGH_FRICTION!r})) as run:
+    try:
+        run.execute()
+        message = ""
+    except SolverError as err:
+        message = str(err)
+if MPI.COMM_WORLD.rank == 0:
+    print(json.dumps({{"message": message}}))
+"""
+    message = run_parallel(code, nprocs=2)["message"]
+    assert message.split("; contact states")[1] == (
+        cycling_failure["message"].split("; contact states")[1])
 
 
 def test_network_mixed_p2_full_steps_on_a_smooth_piece(monkeypatch):

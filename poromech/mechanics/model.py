@@ -907,6 +907,16 @@ class MechanicsModel:
                               posinf=-1.0, neginf=-1.0)
         return np.rint(codes).astype(np.int8)
 
+    def point_faces(self) -> npt.NDArray[np.int64]:
+        """The owned fracture face (index in ``fm.fractures``) of each :meth:`active_set` point."""
+        if self._code_form is None:
+            return np.empty(0, dtype=np.int64)
+        faces = np.full(self._point_weights.size, -1, dtype=np.int64)
+        sub_cells = self.emap.sub_topology_to_topology(self.fm.fractures.facets, inverse=True)
+        dofs = self._points.function_space.dofmap.list[sub_cells]
+        faces[dofs] = np.arange(len(sub_cells))[:, None]
+        return faces
+
     @property
     def assembled_face_fields(self) -> tuple[str, ...]:
         """:data:`FACE_FIELDS` (2D) or :data:`FACE_FIELDS_3D`."""

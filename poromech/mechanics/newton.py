@@ -75,6 +75,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -133,6 +134,11 @@ DEFAULT_OPTIONS: dict[str, object] = {
 #: Residuals a failure message quotes at each end of a longer history (the whole history is in
 #: the step records of summary.json): 100-300 values made messages of several kB on one line.
 QUOTED_RESIDUALS = 4
+
+#: Newton iterations over which :attr:`SemiSmoothNewton.recent_switches` counts the state
+#: changes of each contact point: a point that switched twice or more in the last ten iterations
+#: of a failed solve cycles between branches (a failure message names the fractures it is on).
+RECENT_ITERATIONS = 10
 
 
 def quoted_history(residuals: Sequence[float]) -> str:
@@ -330,6 +336,8 @@ class SemiSmoothNewton:
         self.reference_norm = 0.0
         self._min_iterations = 0
         self._last_states = None  # active set of the current iterate
+        # the points that switched at each of the last iterations (recent_switches)
+        self._switched: deque[np.ndarray] = deque(maxlen=RECENT_ITERATIONS)
         self.contact_points = 0  # contact points (or faces) of the scene, counted at a solve
         self._jacobian_states = None  # active set of the assembled Jacobian
         self.condensed = None
@@ -599,6 +607,20 @@ class SemiSmoothNewton:
         """Active-set codes of the current iterate (None without states)."""
         return self._last_states
 
+    @property
+    def recent_switches(self) -> np.ndarray | None:
+        """State changes of each owned contact point in the last solve's last iterations.
+
+        Counted over its last :data:`RECENT_ITERATIONS` iterations, in the order of the
+        ``states`` codes; None without states.
+        """
+        if self._last_states is None:
+            return None
+        counts = np.zeros(self._last_states.shape, dtype=np.int32)
+        for switched in self._switched:
+            counts += switched
+        return counts
+
     def set_forcing_term(self) -> None:
         """With :attr:`inexact` and a Krylov strategy, the tolerance of the next direction's solve.
 
@@ -644,9 +666,10 @@ class SemiSmoothNewton:
             self._load(snes.getSolution())
             s = self.states()
             if self._last_states is not None and it > 0:
+                switched = s != self._last_states
+                self._switched.append(switched)
                 self.record.active_set_changes.append(
-                    int(self.comm.allreduce(int(np.count_nonzero(s != self._last_states))))
-                )
+                    int(self.comm.allreduce(int(np.count_nonzero(switched)))))
             elif it == 0:
                 self.contact_points = int(self.comm.allreduce(s.size))
             self._last_states = s
@@ -672,6 +695,7 @@ class SemiSmoothNewton:
         """
         self.record = NewtonRecord()
         self._last_states = None
+        self._switched.clear()
         self._cache_valid = False
         if self._step is not None:
             self._step.reset()

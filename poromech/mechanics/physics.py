@@ -38,7 +38,12 @@ from poromech.mechanics.linear import (
 )
 from poromech.mechanics.model import MechanicsModel, PressureCoupling
 from poromech.mechanics.multigrid import p1_interpolation
-from poromech.mechanics.newton import NewtonRecord, SemiSmoothNewton, quoted_history
+from poromech.mechanics.newton import (
+    RECENT_ITERATIONS,
+    NewtonRecord,
+    SemiSmoothNewton,
+    quoted_history,
+)
 from poromech.mechanics.predictor import START_NAMES, StepPredictor, start_rule
 from poromech.mesh.entities import fracture_segments
 from poromech.mesh.fractured import FracturedMesh, cracked_space
@@ -70,6 +75,8 @@ WRITTEN_FACE_FIELDS_3D = ("jump_n", "jump_t", "jump_tx", "jump_ty", "jump_tz", "
 #: Face fields written to ``fractures.xdmf`` only: the fractions of the face in contact and
 #: sliding (they differ from 0 and 1 only where pointwise Nitsche switches inside a face).
 XDMF_ONLY_FACE_FIELDS = ("contact_fraction", "slip_fraction")
+#: Fractures a failure message names where the contact states cycle (the most faces first).
+CYCLING_NAMED = 4
 
 
 def linear_solver_options(kind: str, formulation: str, degree: int = 1) -> dict:
@@ -439,7 +446,40 @@ class MechanicsPhysics:
             if self._held_by_friction:
                 message += (f"; only contact holds {', '.join(self._held_by_friction)}: a load "
                             "beyond what its friction can hold has no equilibrium")
+            message += self._cycling()
         return StepResult(rec.converged, record, message, rec.reason, rec.residuals)
+
+    def _cycling(self) -> str:
+        """Where the contact states cycled in the last iterations of a failed Newton (collective).
+
+        The fractures with faces holding a contact point that switched state at least twice in
+        the last :data:`~poromech.mechanics.newton.RECENT_ITERATIONS` iterations, most such
+        faces first; with Coulomb friction above 1, that the incremental problem may have no
+        solution or several. Empty when no point cycles.
+        """
+        switches = self.solver.recent_switches
+        if switches is None:
+            return ""
+        names = self.fm.geometry.fracture_names
+        faces = self.model.point_faces()
+        cycling = np.unique(faces[(switches >= 2) & (faces >= 0)])
+        counts = np.bincount(self.fm.fractures.fracture[cycling], minlength=len(names))
+        counts = self.fm.msh.comm.allreduce(counts, op=MPI.SUM)
+        if not counts.any():
+            return ""
+        order = sorted((k for k in range(len(names)) if counts[k]), key=lambda k: -counts[k])
+        where = ", ".join(f"{names[k]} {counts[k]}" for k in order[:CYCLING_NAMED])
+        if len(order) > CYCLING_NAMED:
+            where += f" and {len(order) - CYCLING_NAMED} more fracture(s)"
+        n = int(counts.sum())
+        text = (f"; contact states cycle (switched twice or more in the last {RECENT_ITERATIONS} "
+                f"iterations) on {n} face{'s' if n > 1 else ''}: {where}")
+        c = self.scene.contact
+        if c.friction == "coulomb" and c.friction_coefficient > 1:
+            text += (f"; with contact.friction_coefficient {c.friction_coefficient:g} > 1 the "
+                     "step's Coulomb problem may have several solutions or none (Klarbring "
+                     "1990)")
+        return text
 
     def accept(self, t: float) -> None:
         """The solved displacement becomes the reference of the next slip increment."""
