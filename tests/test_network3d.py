@@ -4,8 +4,8 @@ Seven fractures make an X, a T, a fracture reaching the box and a kink; compress
 in four load steps, Coulomb friction F = 0.5, Nitsche θ = -1. Checked: every fracture is meshed,
 Newton stays within 15 iterations per step, where a step starts moves no result, the written
 states agree with the written tractions and jumps, the Jacobian of every formulation equals
-finite differences of the residual, ``mean_nitsche`` gives nearly the same jumps, and 2 ranks
-write the same table as 1.
+finite differences of the residual, ``mean_nitsche`` gives nearly the same jumps, 2 ranks
+write the same table as 1, and a restart goes on with the linear solver's choices.
 """
 
 from __future__ import annotations
@@ -345,6 +345,95 @@ def test_network_p_multigrid_falls_back_to_sor(tmp_path, monkeypatch):
         states[name] = [r["state"] for r in read_table(tmp_path / name / "fractures.csv")]
     assert summary["linear_solver"]["p_multigrid"]["fine_smoother"] == "richardson/sor"
     assert states["pmg"] == states["direct"]
+
+
+def _restarted(tmp_path, sets: list[str]) -> tuple[dict, dict]:
+    """The coarse network's two load steps run at once, and as one step continued with
+    ``restart``: both summaries."""
+    two = ["time.final=2", "time.steps=2"]
+    full = run_scene(load_scene(NETWORK, sets + two), tmp_path / "full")
+    run_scene(load_scene(NETWORK, sets + ["time.final=1", "time.steps=1"]), tmp_path / "part")
+    part = run_scene(load_scene(NETWORK, sets + two), tmp_path / "part", restart=True)
+    return full, part
+
+
+def test_a_restart_keeps_the_p2_smoother_fallback(tmp_path, monkeypatch, caplog):
+    """A run that fell back from point-block Jacobi to SOR sweeps on the p-multigrid's P2 level
+    (forced with a limit of 1 GMRES iteration, as above) goes on with SOR sweeps after a
+    restart: the checkpoint holds the fallback, and the continued run neither repeats the failed
+    solves nor says the fallback again; its states are the uninterrupted run's."""
+    import logging
+
+    import h5py
+
+    import poromech.mechanics.linear as linear
+
+    monkeypatch.setattr(linear, "FALLBACK_IT", 1)
+    sets = [c for c in COARSE if not c.startswith(("degree", "output.checkpoint"))] + [
+        "degree=2", "solver.linear_solver=iterative"]
+    with caplog.at_level(logging.INFO, logger="poromech"):
+        full, part = _restarted(tmp_path, sets)
+    # the continued run's messages: from its solver's announcement on
+    restart = max(i for i, r in enumerate(caplog.records)
+                  if r.getMessage().startswith("mechanics linear solver"))
+    said = [r.getMessage() for r in caplog.records[restart:] if "P2 smoother" in r.getMessage()]
+    assert said == ["p-multigrid P2 smoother: richardson/sor, the fallback of the run continued"]
+    with h5py.File(tmp_path / "part" / "checkpoint.h5") as f:
+        assert f["linear_p2_smoother"][:].tolist() == [1.0]  # richardson/sor
+    for summary in (full, part):
+        assert summary["status"] == "converged"
+        assert summary["linear_solver"]["p_multigrid"]["fine_smoother"] == "richardson/sor"
+    # no failed solve in the continued step: one set-up per Jacobian and the restored smoother's
+    assert part["solves"][1]["factorizations"] == part["solves"][1]["iterations"] + 1
+    states = {n: [r["state"] for r in read_table(tmp_path / n / "fractures.csv")]
+              for n in ("full", "part")}
+    assert states["part"] == states["full"]
+
+
+def test_a_restart_keeps_the_gamg_smoother_choice(tmp_path, monkeypatch):
+    """P1 (GAMG, GMRES): the level smoother chosen between SOR and Jacobi and its trial back-off
+    are in the checkpoint, and a restart hands them back to the solver before its first solve."""
+    import h5py
+
+    import poromech.mechanics.linear as linear
+
+    restored = []
+    original = linear.IterativeSolver.restore_choices
+    monkeypatch.setattr(linear.IterativeSolver, "restore_choices",
+                        lambda self, choices: (restored.append(dict(choices)),
+                                               original(self, choices))[1])
+    sets = [c for c in COARSE if not c.startswith("output.checkpoint")] + [
+        "solver.linear_solver=iterative"]
+    full, part = _restarted(tmp_path, sets)
+    assert part["status"] == "converged"
+    with h5py.File(tmp_path / "full" / "checkpoint.h5") as f:
+        written = {k[len("linear_"):]: float(f[k][0]) for k in f if k.startswith("linear_")}
+    assert set(written) == {"level_smoother", "trials_kept", "untried"}
+    assert linear.SMOOTHERS[int(written["level_smoother"])] == (
+        full["linear_solver"]["level_smoother"])
+    # the choices after step 1 (the partial run's checkpoint) went back into the solver
+    assert len(restored) == 1 and set(restored[0]) == set(written)
+
+
+def test_a_restart_keeps_the_switch_to_mumps(tmp_path, monkeypatch):
+    """``solver.linear_solver auto``: a run handed to MUMPS LU by a failed Krylov solve (one
+    iteration allowed) is continued with MUMPS from its first solve, said in a warning; without
+    that it would fail a Krylov solve again first. Same states as the uninterrupted run."""
+    from poromech.scene import resources
+
+    monkeypatch.setattr(resources, "ITERATIVE_FROM_UNKNOWNS_3D", 1_000)
+    sets = [c for c in COARSE if not c.startswith("output.checkpoint")] + [
+        "solver.petsc.ksp_max_it=1"]
+    full, part = _restarted(tmp_path, sets)
+    for summary in (full, part):
+        assert summary["status"] == "converged"
+        assert summary["linear_solver"]["fallback"] == "direct"
+    assert [w for w in part["warnings"] if w.startswith("the run continued here had switched")]
+    assert part["solves"][1]["linear_failure"] == ""
+    assert part["solves"][1]["factorizations"] <= full["solves"][1]["factorizations"]
+    states = {n: [r["state"] for r in read_table(tmp_path / n / "fractures.csv")]
+              for n in ("full", "part")}
+    assert states["part"] == states["full"]
 
 
 #: F = 2: the second shear step of the coarse network fails, its states cycling.

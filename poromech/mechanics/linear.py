@@ -37,7 +37,7 @@ from dolfinx import fem
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from poromech.mechanics.multigrid import PMultigrid
+from poromech.mechanics.multigrid import PMultigrid, smoother_name
 from poromech.petsc_options import PrefixedOptions, ksp_reason_name
 
 log = logging.getLogger("poromech")
@@ -670,6 +670,7 @@ class IterativeSolver:
         self._chosen = 0  # choices made (the first is logged)
         self._kept = 0  # trials in a row that kept the smoother (TRIAL_BACKOFF)
         self._untried = 0  # set-ups left that keep the smoother without a trial
+        self._restored_p2: tuple[str, str] | None = None  # a restart's P2 smoother, to be set
         self.nullspace = None if modes is None else near_nullspace(A, modes)
         self.near_nullspace_size = 0 if modes is None else len(modes)
         self._fresh = True  # a Jacobian was assembled since the last set-up
@@ -783,6 +784,39 @@ class IterativeSolver:
         record.linear_iterations += its
         return its, ksp.getConvergedReason() > 0
 
+    def choices(self) -> dict[str, int]:
+        """What the run has chosen for this solver so far, for a restart to go on with.
+
+        ``p2_smoother``: the index in :data:`FALLBACK_SMOOTHERS` of the p-multigrid's P2
+        smoother after a fallback; ``level_smoother``, ``trials_kept``, ``untried``: GAMG's
+        chosen level smoother (index in :data:`SMOOTHERS`) and its trial back-off
+        (:data:`TRIAL_BACKOFF`). Empty when nothing was chosen (see :meth:`restore_choices`).
+        """
+        out = {}
+        if self.multigrid is not None and self.multigrid.level_smoother in FALLBACK_SMOOTHERS:
+            out["p2_smoother"] = FALLBACK_SMOOTHERS.index(self.multigrid.level_smoother)
+        if self.smoother is not None:
+            out.update(level_smoother=SMOOTHERS.index(self.smoother), trials_kept=self._kept,
+                       untried=self._untried)
+        return out
+
+    def restore_choices(self, choices: dict[str, int]) -> None:
+        """Go on with the :meth:`choices` of an earlier run (a restart), before the first solve.
+
+        A run that fell back to another P2 smoother, or chose GAMG's level smoother, keeps it
+        for the rest of the run; continued, it would otherwise start again from the first ones
+        (and repeat the failed solves of a fallback).
+        """
+        if "p2_smoother" in choices and self.multigrid is not None:
+            self._restored_p2 = FALLBACK_SMOOTHERS[int(choices["p2_smoother"])]
+            if self.comm.rank == 0:
+                log.info("p-multigrid P2 smoother: %s, the fallback of the run continued",
+                         smoother_name(*self._restored_p2))
+        if "level_smoother" in choices and self.smoother is not None:
+            self.smoother = SMOOTHERS[int(choices["level_smoother"])]
+            self._kept = int(choices.get("trials_kept", 0))
+            self._untried = int(choices.get("untried", 0))
+
     def _fallbacks(self) -> tuple[tuple[str, str], ...]:
         """The P2 smoothers (KSP, PC) a failed p-multigrid solve would still fall back to."""
         if self.multigrid is None:
@@ -849,6 +883,13 @@ class IterativeSolver:
             ksp.setUp()
         record.time_preconditioner += time.perf_counter() - t0
         record.factorizations += 1
+        if self._restored_p2 is not None:
+            # the first set-up gives the P2 level the options' smoother: the restored one is
+            # put in its place with a second set-up (once per restart)
+            ksp_type, pc_type = self._restored_p2
+            self._restored_p2 = None
+            self.multigrid.set_smoother(pc_type, ksp_type)
+            self._set_up(record, rebuild=True)
 
     def _choose(self, F: PETSc.Vec, Y: PETSc.Vec, its: int, record) -> int:
         """Choose the level smoother on the system just solved after a set-up (collective).

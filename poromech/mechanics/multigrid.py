@@ -64,6 +64,11 @@ def p1_interpolation(V: fem.FunctionSpace, V1: fem.FunctionSpace) -> PETSc.Mat:
     return P
 
 
+def smoother_name(ksp_type: str, pc_type: str) -> str:
+    """A fine-level smoother's name: its PC type with Chebyshev, else ``KSP/PC``."""
+    return pc_type if ksp_type == PETSc.KSP.Type.CHEBYSHEV else f"{ksp_type}/{pc_type}"
+
+
 class PMultigrid:
     """A two-level PCMG on a KSP: P2 smoothing, GAMG on the P1 Galerkin operator.
 
@@ -117,8 +122,7 @@ class PMultigrid:
     @property
     def smoother(self) -> str:
         """The fine level's smoother: its PC type, ``richardson/PC`` for plain sweeps."""
-        ksp_type, pc_type = self.level_smoother
-        return pc_type if ksp_type == PETSc.KSP.Type.CHEBYSHEV else f"{ksp_type}/{pc_type}"
+        return smoother_name(*self.level_smoother)
 
     def set_smoother(self, smoother: str, ksp_type: str = PETSc.KSP.Type.CHEBYSHEV) -> None:
         """Make ``smoother`` (a PC type) with ``ksp_type`` the P2 level's (built at set-up)."""

@@ -588,13 +588,21 @@ class SemiSmoothNewton:
         strategy = fallback(self.record.linear_failure) if fallback is not None else None
         if strategy is None:
             return False
-        self._retired.append(self.linear)
-        self.linear = strategy
-        strategy.assembled(self._jacobian_states)
+        self.hand_over(strategy)
         if not strategy.solve(b, y, self.record, states):
             return False
         self.record.linear_failure = ""
         return True
+
+    def hand_over(self, strategy: LinearStrategy) -> None:
+        """``strategy`` solves every later direction (the fallback's, or a restart's).
+
+        The replaced strategy is kept until :meth:`destroy`; no fallback is left.
+        """
+        self._fallback = None
+        self._retired.append(self.linear)
+        self.linear = strategy
+        strategy.assembled(self._jacobian_states)
 
     def _same_states(self, reference) -> bool:
         """Whether the current active set equals ``reference`` on every rank (collective)."""

@@ -292,13 +292,14 @@ class MechanicsPhysics:
         self._table: FractureTable | None = None
         self._probes: list[tuple] = []
 
-    def _direct_fallback(self, failure: str) -> DirectSolver | None:
+    def _direct_fallback(self, failure: str, restart: bool = False) -> DirectSolver | None:
         """MUMPS LU for the rest of the run, after the first failed Krylov solve (``auto``).
 
         Only where the factorization fits: :data:`FALLBACK_MEMORY_MARGIN` times its estimate
         (:func:`~poromech.scene.resources.direct_solve_bytes_3d`) within the memory
         available now; otherwise None, and the Newton fails as before. Said in one warning
-        (kept for ``summary.json``) either way (collective).
+        (kept for ``summary.json``) either way (collective). ``restart``: the switch of the run
+        being continued (:meth:`restore`), ``failure`` unused.
         """
         n = self.model.dof_count()
         need = direct_solve_bytes_3d(n)
@@ -306,9 +307,10 @@ class MechanicsPhysics:
         fits = FALLBACK_MEMORY_MARGIN * need <= available
         what = ("solver.linear_solver auto: the mechanics switches to MUMPS LU for the rest of "
                 "the run" if fits else "MUMPS LU is not tried")
-        self.model.warn(f"the iterative linear solve failed ({failure}); {what} (about "
-                       f"{need / 1e9:.2g} GB for {n} unknowns, {available / 1e9:.3g} GB "
-                       f"available, {limit})")
+        why = ("the run continued here had switched to MUMPS LU after a failed iterative solve"
+               if restart else f"the iterative linear solve failed ({failure})")
+        self.model.warn(f"{why}; {what} (about {need / 1e9:.2g} GB for {n} unknowns, "
+                        f"{available / 1e9:.3g} GB available, {limit})")
         if not fits:
             return None
         self.fallback = "direct"
@@ -618,6 +620,12 @@ class MechanicsPhysics:
         if m.u_prev is not None:
             out["u_prev"] = self._rows(m.u_prev, m.u_prev.x.array)
         out["reference_norm"] = scalar_row(self.fm.comm, self.solver.reference_norm)
+        # what the linear solver chose so far, for a restart to go on with
+        if self.fallback is not None:
+            out["linear_direct"] = scalar_row(self.fm.comm, 1.0)
+        choices = getattr(self.solver.linear, "choices", None)
+        for name, value in (choices() if choices is not None else {}).items():
+            out[f"linear_{name}"] = scalar_row(self.fm.comm, value)
         previous = self.predictor.previous
         if previous is not None:
             t0, arrays = previous
@@ -639,9 +647,31 @@ class MechanicsPhysics:
         if m.u_prev is not None:
             set_cell_dof_rows(self.fm, m.u_prev, arrays["u_prev"])
         self.solver.reference_norm = float(arrays["reference_norm"][0])
+        self._restore_linear_choices(arrays)
         self.predictor.restore(t, previous)
         for saved, f in zip(self._saved, m.unknowns, strict=True):
             saved[:] = f.x.array
+
+    def _restore_linear_choices(self, arrays: dict) -> None:
+        """The linear solver goes on as the run being continued had left it (collective).
+
+        After its switch to MUMPS LU (``solver.linear_solver auto``), with MUMPS again (said in
+        a warning, or why not); a Krylov solver with its P2 smoother fallback and GAMG's level
+        smoother choice (:meth:`~poromech.mechanics.linear.IterativeSolver.restore_choices`).
+        Checkpoints written before these were kept hold none of them: the run then starts the
+        linear solver afresh, as it did.
+        """
+        if ("linear_direct" in arrays and self.fallback is None
+                and self.linear_solver == "iterative"):
+            strategy = self._direct_fallback("", restart=True)
+            if strategy is not None:
+                self.solver.hand_over(strategy)
+            return
+        restore = getattr(self.solver.linear, "restore_choices", None)
+        prefix = "linear_"
+        choices = {k[len(prefix):]: float(arrays[k][0]) for k in arrays if k.startswith(prefix)}
+        if restore is not None and choices:
+            restore(choices)
 
     def finish(self, summary: dict, records: list[dict]) -> None:
         """The linear solver's work over every solve, and the condensed solve's, if any."""
