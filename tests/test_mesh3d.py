@@ -121,6 +121,24 @@ CASES = {
         MeshSizes(0.25, 0.12, 0.12, 0.3)),
 }
 
+
+
+def scaled(name, k):
+    """Case ``name`` with every length multiplied by ``k``."""
+    geo, sizes = CASES[name]
+
+    def fracture(f):
+        if f.is_disc:
+            return Fracture3D.disc(f.name, f.center * k, f.normal, f.radius * k)
+        return Fracture3D.polygon(f.name, f.points * k)
+
+    return (BoxGeometry(tuple(v * k for v in geo.box), tuple(map(fracture, geo.fractures))),
+            MeshSizes(sizes.size * k, sizes.fracture_size * k, sizes.tip_size * k,
+                      sizes.transition * k))
+
+
+# a 1.7 mm box: gmsh's geometry kernel enlarges bounding boxes by 1e-7 in the model's units
+CASES["network_mm"] = scaled("network", 1e-3)
 _MESHES: dict = {}
 
 
@@ -346,7 +364,7 @@ def _tri_area(x, tri):
 
 
 @pytest.mark.parametrize("name", ["penny", "tilted", "network", "face", "disc", "through",
-                                  "oblique"])
+                                  "oblique", "network_mm"])
 def test_generate(name):
     geo, sizes = CASES[name]
     ar, rep = mesh_of(name)
@@ -389,6 +407,31 @@ def test_generate(name):
         key = np.column_stack([c[sel] @ t1, c[sel] @ t2])
         assert np.all(np.diff(key[:, 0]) >= 0)
     assert np.all(np.diff(ar.fracture_id) >= 0) and np.all(np.diff(ar.boundary_edge) >= 0)
+
+
+def test_a_small_box_is_meshed_as_its_scaled_copy():
+    """A box below a metre is meshed in units that bring its diameter between 1 and 10 (the
+    1.7 mm network in millimetres): the mesh of the unit-box network scaled by 1e-3, the same
+    tetrahedra, fracture and boundary faces, the nodes to round-off. With the model in metres
+    OpenCASCADE's absolute precision (1e-7) was 60 times the classification tolerance and the
+    box faces were not found."""
+    from poromech.mesh.generate3d import model_scale
+
+    assert model_scale(CASES["network"][0]) == 1.0
+    assert model_scale(CASES["network_mm"][0]) == pytest.approx(1e-3, rel=1e-15)
+    big, _ = mesh_of("network")
+    small, _ = mesh_of("network_mm")
+    assert np.array_equal(small.cells, big.cells)
+    assert np.abs(small.x - 1e-3 * big.x).max() < 1e-15 * 1e-3
+
+    def tagged(facets, tags):  # (tag, sorted nodes) rows, sorted: the faces sort by
+        rows = np.column_stack([tags, np.sort(facets, axis=1)])  # centroids, ties by round-off
+        return rows[np.lexsort(rows.T[::-1])]
+
+    assert np.array_equal(tagged(small.fracture_facets, small.fracture_id),
+                          tagged(big.fracture_facets, big.fracture_id))
+    assert np.array_equal(tagged(small.boundary_facets, small.boundary_edge),
+                          tagged(big.boundary_facets, big.boundary_edge))
 
 
 def test_hxt_conforms_and_frontal_is_refused():

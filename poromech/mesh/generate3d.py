@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import numpy.typing as npt
@@ -75,6 +75,10 @@ _MAX_BISECTION_ROUNDS = 5
 
 #: Geometric tolerance for classifying gmsh entities, as a fraction of the box diameter.
 _CLASSIFY_TOL = 1e-7
+#: The least of that tolerance, in the model's units. OpenCASCADE enlarges every bounding box by
+#: its absolute precision, 1e-7, whatever the model's size: a 2 mm box's faces reached 1e-7 m
+#: beyond them, 50 times its relative tolerance, and the box faces were not found.
+_OCC_MARGIN = 1e-6
 
 _TETRA, _TRIANGLE = 4, 2  # gmsh element types
 
@@ -103,6 +107,37 @@ class MeshReport3D:
     bisected_edges: int
     tip_curves: int
     seconds: dict[str, float] = field(default_factory=dict)
+
+
+def model_scale(geo: BoxGeometry) -> float:
+    """The length (m) that is gmsh's unit of length for ``geo``.
+
+    1, or for a box of diameter below 1 m the power of ten that brings it between 1 and 10.
+    OpenCASCADE's absolute precision (1e-7 in the model's units, :data:`_OCC_MARGIN`) is then
+    at most 1e-7 of the box; boxes of a metre and more are meshed in metres, as they were.
+    """
+    d = geo.diameter
+    return 1.0 if d >= 1.0 else 10.0 ** np.floor(np.log10(d))
+
+
+def _scaled(geo: BoxGeometry, sizes: MeshSizes, scale: float) -> tuple[BoxGeometry, MeshSizes]:
+    """``geo`` and ``sizes`` in units of ``scale`` (m)."""
+    if scale == 1.0:
+        return geo, sizes
+
+    def fracture(f: Fracture3D) -> Fracture3D:
+        if f.is_disc:
+            return Fracture3D.disc(f.name, f.center / scale, f.normal, f.radius / scale)
+        return Fracture3D.polygon(f.name, f.points / scale)
+
+    box = BoxGeometry(tuple(v / scale for v in geo.box), tuple(map(fracture, geo.fractures)),
+                      tuple(map(fracture, geo.surfaces)))
+    zones = tuple(replace(z, center=tuple(c / scale for c in z.center), radius=z.radius / scale,
+                          size=z.size / scale, transition=z.transition / scale)
+                  for z in sizes.zones)
+    return box, replace(sizes, size=sizes.size / scale, fracture_size=sizes.fracture_size / scale,
+                        tip_size=sizes.tip_size / scale, transition=sizes.transition / scale,
+                        zones=zones)
 
 
 def _add_fracture(occ, fr: Fracture3D) -> int:
@@ -318,14 +353,16 @@ def build_mesh_3d(geo: BoxGeometry, sizes: MeshSizes, repair: bool = True,
                     grading, MAX_GRADING)
     seconds: dict[str, float] = {}
     t0 = time.perf_counter()
-    tol = _CLASSIFY_TOL * geo.diameter
+    scale = model_scale(geo)  # gmsh works in units of scale (m)
+    model, model_sizes = _scaled(geo, sizes, scale)
+    tol = max(_CLASSIFY_TOL * model.diameter, _OCC_MARGIN)
     with gmsh_session() as gmsh:
         gmsh.option.setNumber("General.NumThreads", 1)
         gmsh.model.add("poromech3d")
-        surfaces = _build_model(gmsh, geo)
-        faces = _boundary_surfaces(gmsh, geo, tol)
-        tips = _tip_curves(gmsh, geo, surfaces, tol)
-        _size_fields(gmsh, geo, surfaces, tips, sizes)
+        surfaces = _build_model(gmsh, model)
+        faces = _boundary_surfaces(gmsh, model, tol)
+        tips = _tip_curves(gmsh, model, surfaces, tol)
+        _size_fields(gmsh, model, surfaces, tips, model_sizes)
         gmsh.option.setNumber("Mesh.Algorithm", ALGORITHM_2D)
         gmsh.option.setNumber("Mesh.Algorithm3D", algorithm_3d)
         seconds["model"] = time.perf_counter() - t0
@@ -338,6 +375,8 @@ def build_mesh_3d(geo: BoxGeometry, sizes: MeshSizes, repair: bool = True,
         seconds["refine"] = time.perf_counter() - t
         t = time.perf_counter()
         x, cells, fracture, boundary = _extract(gmsh, surfaces, faces)
+        if scale != 1.0:
+            x = x * scale
     gmsh_cells = len(cells)
     _check_conforming(cells, fracture[0], boundary[0], algorithm_3d)
     x, cells, ff, bf = _drop_unused(x, _orient(x, cells), fracture[0], boundary[0])
