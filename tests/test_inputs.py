@@ -396,7 +396,7 @@ def test_meshes_too_large_for_memory(tmp_path, capsys):
     refused(capsys, "validate", "six_fractures_mechanics", "--set", "mesh.size=1e-300",
             fragments=["mesh.size = 1e-300", "~inf cells", "~inf GB", "--force"])
     refused(capsys, "validate", "network3d", "--set", "mesh.fracture_size=1e-120",
-            fragments=["~inf cells", "~inf GB", "--force"])
+            fragments=["mesh.fracture_size = 1e-120", "~inf cells", "~inf GB", "--force"])
     assert not (tmp_path / "r").exists()
     assert main(["validate", "six_fractures_mechanics", "--set", "mesh.refinement=7",
                  "--force"]) == 0

@@ -439,8 +439,13 @@ def check_resources(scene, geo: PlaneGeometry, comm: MPI.Comm = MPI.COMM_WORLD,
               est.cells, est.unknowns, _gb(est.memory), _gb(limit), source)
     if est.memory <= limit:
         return est
+    # the sizes that set the count: the finer fracture and tip sizes too, when given
+    finer = "".join(f", mesh.{key} = {value:g}" for key, value in
+                    (("fracture_size", m.fracture_size), ("tip_size", m.tip_size))
+                    if value is not None and value < m.size)
     zones = (f", mesh.zones down to size {min(z.size for z in m.zones):g}" if m.zones else "")
-    text = (f"scene mesh (mesh.size = {m.size:g}, mesh.refinement = {m.refinement}{zones}) gives "
+    text = (f"scene mesh (mesh.size = {m.size:g}{finer}, mesh.refinement = {m.refinement}{zones}) "
+            "gives "
             f"~{est.cells:.2g} cells and ~{est.unknowns:.2g} unknowns, estimated to need "
             f"~{_gb(est.memory)} of memory, more than the {_gb(limit)} available ({source})")
     if force:
