@@ -5,7 +5,8 @@ in four load steps, Coulomb friction F = 0.5, Nitsche θ = -1. Checked: every fr
 Newton stays within 15 iterations per step, where a step starts moves no result, the written
 states agree with the written tractions and jumps, the Jacobian of every formulation equals
 finite differences of the residual, ``mean_nitsche`` gives nearly the same jumps, 2 ranks
-write the same table as 1, and a restart goes on with the linear solver's choices.
+write the same table as 1, a restart goes on with the linear solver's choices, and the
+network shrunk 1000 times gives the same answer scaled.
 """
 
 from __future__ import annotations
@@ -592,6 +593,47 @@ def test_network_jacobian_matches_finite_differences(formulation, degree):
         assert np.count_nonzero(states == 0) > 0 and np.count_nonzero(states == 1) > 0
         assert np.count_nonzero(states == 2) > 10
         check_jacobian(physics.solver, h=1e-9 if formulation == "mixed" else 1e-7)
+
+
+def test_the_network_shrunk_1000_times_gives_the_same_answer(network, tmp_path):
+    """Every length of the scene (box, fractures, mesh sizes, boundary displacements) times
+    1e-3, a 2 mm box: the same states, the jumps times 1e-3 and the same tractions, to 1e-8 of
+    each column's scale. Nothing in meshing, β = β⁰/h, the Newton's tolerances or the states
+    may hold an absolute length (OpenCASCADE's did: the box faces of a 2 mm box were not
+    found)."""
+    import yaml
+
+    k = 1e-3
+    raw = yaml.safe_load(NETWORK.read_text())
+    raw["parameters"]["c"] *= k
+    raw["parameters"]["s"] *= k
+    raw["geometry"]["domain"]["box"] = [v * k for v in raw["geometry"]["domain"]["box"]]
+    for f in raw["geometry"]["fractures"]:
+        if "disc" in f:
+            f["disc"]["center"] = [v * k for v in f["disc"]["center"]]
+            f["disc"]["radius"] *= k
+        else:
+            f["polygon"] = [[v * k for v in p] for p in f["polygon"]]
+    path = tmp_path / "network_mm.yaml"
+    path.write_text(yaml.safe_dump(raw, sort_keys=False))
+    sizes = {"mesh.size": 0.75 * k, "mesh.fracture_size": 0.25 * k}
+    sets = [c for c in COARSE if c.split("=")[0] not in sizes]
+    run_scene(load_scene(path, sets + [f"{key}={v!r}" for key, v in sizes.items()]),
+              tmp_path / "out")
+    def rows(table, unit):  # in the order of (time, fracture, face centre): faces whose
+        def key(r):  # centres tie sort by round-off
+            return (float(r["time"]), r["fracture"],
+                    *(round(float(r[c]) / unit, 9) for c in "xyz"))
+        return sorted(table, key=key)
+
+    one = rows(network[1], 1.0)
+    small = rows(read_table(tmp_path / "out" / "fractures.csv"), k)
+    assert [r["state"] for r in small] == [r["state"] for r in one]
+    for name in NUMBERS:
+        unit = 1.0 if name.startswith("traction") else k
+        a = np.array([float(r[name]) for r in one])
+        b = np.array([float(r[name]) for r in small]) / unit
+        assert np.abs(b - a).max() <= 1e-8 * np.abs(a).max(), name
 
 
 @pytest.mark.mpi
