@@ -413,8 +413,8 @@ def test_a_small_box_is_meshed_as_its_scaled_copy():
     """A box below a metre is meshed in units that bring its diameter between 1 and 10 (the
     1.7 mm network in millimetres): the mesh of the unit-box network scaled by 1e-3, the same
     tetrahedra, fracture and boundary faces, the nodes to round-off. With the model in metres
-    OpenCASCADE's absolute precision (1e-7) was 60 times the classification tolerance and the
-    box faces were not found."""
+    OpenCASCADE's absolute precision (1e-7) was about 600 times the classification tolerance
+    and the box faces were not found."""
     from poromech.mesh.generate3d import model_scale
 
     assert model_scale(CASES["network"][0]) == 1.0

@@ -76,8 +76,8 @@ _MAX_BISECTION_ROUNDS = 5
 #: Geometric tolerance for classifying gmsh entities, as a fraction of the box diameter.
 _CLASSIFY_TOL = 1e-7
 #: The least of that tolerance, in the model's units. OpenCASCADE enlarges every bounding box by
-#: its absolute precision, 1e-7, whatever the model's size: a 2 mm box's faces reached 1e-7 m
-#: beyond them, 50 times its relative tolerance, and the box faces were not found.
+#: its absolute precision, 1e-7, whatever the model's size: modelled in metres, a 2 mm box's
+#: faces reached 1e-7 m beyond them, about 300 times its tolerance, and were not found.
 _OCC_MARGIN = 1e-6
 
 _TETRA, _TRIANGLE = 4, 2  # gmsh element types
@@ -113,8 +113,9 @@ def model_scale(geo: BoxGeometry) -> float:
     """The length (m) that is gmsh's unit of length for ``geo``.
 
     1, or for a box of diameter below 1 m the power of ten that brings it between 1 and 10.
-    OpenCASCADE's absolute precision (1e-7 in the model's units, :data:`_OCC_MARGIN`) is then
-    at most 1e-7 of the box; boxes of a metre and more are meshed in metres, as they were.
+    OpenCASCADE's absolute precision, 1e-7 in the model's units (see :data:`_OCC_MARGIN`), is
+    then at most 1e-7 of the box's diameter; boxes of a metre and more are meshed in metres, as
+    they were.
     """
     d = geo.diameter
     return 1.0 if d >= 1.0 else 10.0 ** np.floor(np.log10(d))
