@@ -766,6 +766,20 @@ class IterativeSolver:
         record.linear_failure = failure_message(ksp, F)
         return False
 
+    def prime(self, record) -> None:
+        """Set the preconditioner up on the current matrix without solving (collective).
+
+        GAMG aggregates the unknowns and builds its prolongators at its first set-up only, and
+        keeps them for the later Jacobians (PETSc reuses the interpolation of a matrix of the
+        same pattern: a set-up then forms the Galerkin products): the coarse spaces of a run
+        come from its first Jacobian. A restart primes the solver with the Jacobian of the run's
+        initial unknowns, so that it coarsens the matrix the run it continues coarsened; the
+        next solve compares its Jacobian with this one and sets up, lags or reuses as usual.
+        """
+        self._unchanged()  # the fingerprint of this Jacobian
+        self._set_up(record)
+        self._fresh = True
+
     def _counted_solve(self, F: PETSc.Vec, Y: PETSc.Vec, record,
                        max_it: int | None = None) -> tuple[int, bool]:
         """One Krylov solve, within ``max_it`` iterations if given (at most the options').
@@ -784,29 +798,37 @@ class IterativeSolver:
         record.linear_iterations += its
         return its, ksp.getConvergedReason() > 0
 
-    def choices(self) -> dict[str, int]:
+    def choices(self) -> dict[str, float]:
         """What the run has chosen for this solver so far, for a restart to go on with.
 
         ``p2_smoother``: the index in :data:`FALLBACK_SMOOTHERS` of the p-multigrid's P2
         smoother after a fallback; ``level_smoother``, ``trials_kept``, ``untried``: GAMG's
         chosen level smoother (index in :data:`SMOOTHERS`) and its trial back-off
-        (:data:`TRIAL_BACKOFF`). Empty when nothing was chosen (see :meth:`restore_choices`).
+        (:data:`TRIAL_BACKOFF`); ``lag_rate``: the iterations per decade after the last set-up
+        of a :attr:`lagged` preconditioner. Empty when nothing was chosen (see
+        :meth:`restore_choices`).
         """
-        out = {}
+        out: dict[str, float] = {}
         if self.multigrid is not None and self.multigrid.level_smoother in FALLBACK_SMOOTHERS:
             out["p2_smoother"] = FALLBACK_SMOOTHERS.index(self.multigrid.level_smoother)
         if self.smoother is not None:
             out.update(level_smoother=SMOOTHERS.index(self.smoother), trials_kept=self._kept,
                        untried=self._untried)
+        if self.lagged and self._rate is not None:
+            out["lag_rate"] = self._rate
         return out
 
-    def restore_choices(self, choices: dict[str, int]) -> None:
+    def restore_choices(self, choices: dict[str, float]) -> None:
         """Go on with the :meth:`choices` of an earlier run (a restart), before the first solve.
 
         A run that fell back to another P2 smoother, or chose GAMG's level smoother, keeps it
         for the rest of the run; continued, it would otherwise start again from the first ones
-        (and repeat the failed solves of a fallback).
+        (and repeat the failed solves of a fallback). A lagged preconditioner's rate lets the
+        first solve after the restart lag on the preconditioner of :meth:`prime`, as the run
+        continued would have lagged on its last one.
         """
+        if "lag_rate" in choices:
+            self._rate = float(choices["lag_rate"])
         if "p2_smoother" in choices and self.multigrid is not None:
             self._restored_p2 = FALLBACK_SMOOTHERS[int(choices["p2_smoother"])]
             if self.comm.rank == 0:
@@ -1024,6 +1046,7 @@ class FaceElimination:
         #: Passed to the :class:`IterativeSolver` of ``S``.
         self.lagged = False
         self.inner: IterativeSolver | None = None
+        self._choices: dict[str, float] = {}  # a restart's, for the solver of S when built
         self.near_nullspace_size = len(modes)
 
     def _extract(self) -> None:
@@ -1041,6 +1064,8 @@ class FaceElimination:
                                          choose_smoother=self._choose_smoother,
                                          multigrid=self.multigrid)
             self.inner.lagged = self.lagged
+            if self._choices:
+                self.inner.restore_choices(self._choices)
         else:
             self.S.zeroEntries()
             self.S.axpy(1.0, self._sub["uu"], structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
@@ -1074,6 +1099,23 @@ class FaceElimination:
 
     def assembled(self, states: npt.NDArray | None) -> None:
         """A new Jacobian is in the matrix: its blocks and ``S`` are formed at the next solve."""
+        self._fresh = True
+
+    def choices(self) -> dict[str, float]:
+        """The solver of ``S``'s :meth:`IterativeSolver.choices` (none before it is built)."""
+        return {} if self.inner is None else self.inner.choices()
+
+    def restore_choices(self, choices: dict[str, float]) -> None:
+        """:meth:`IterativeSolver.restore_choices`, handed to the solver of ``S`` when built."""
+        if self.inner is not None:
+            self.inner.restore_choices(choices)
+        else:
+            self._choices = dict(choices)
+
+    def prime(self, record) -> None:
+        """:meth:`IterativeSolver.prime` on ``S`` of the assembled Jacobian (collective)."""
+        self._extract()
+        self.inner.prime(record)
         self._fresh = True
 
     def solve(self, F: PETSc.Vec, Y: PETSc.Vec, record, states: npt.NDArray | None) -> bool:

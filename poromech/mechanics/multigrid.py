@@ -15,7 +15,12 @@ two-level PCMG:
 
 Its set-up is a triple product and a GAMG set-up of the P1 operator, a fraction of a GAMG set-up
 on P2 (0.5 s against 4.6 s per set-up on the 257k-unknown network of docs/mechanics3d.md), so the
-preconditioner is set up for every new Jacobian instead of being lagged. The options under
+preconditioner is set up for every new Jacobian instead of being lagged. GAMG aggregates and
+builds its prolongators at its first set-up only, and later set-ups form the Galerkin products
+of the new operator (PETSc keeps the interpolation of a matrix of the same pattern; on the
+level-4 network 45 set-ups made one aggregation): the coarse spaces come from the run's first
+Jacobian, where a restart builds them too
+(:meth:`~poromech.mechanics.linear.IterativeSolver.prime`). The options under
 ``<prefix>mg_levels_`` (the fine smoother) and ``<prefix>mg_coarse_`` (the P1 solve) override
 the defaults (:func:`~poromech.mechanics.linear.iterative_options`).
 """

@@ -725,6 +725,23 @@ class SemiSmoothNewton:
         r.linear_iterations += self.snes.getLinearSolveIterations()
         return r
 
+    def prime_preconditioner(self) -> None:
+        """Set the Krylov preconditioner up on the Jacobian at the current unknowns (collective).
+
+        For a restart, at the run's initial unknowns (:meth:`MechanicsPhysics.restore
+        <poromech.mechanics.physics.MechanicsPhysics.restore>`): see the linear strategy's
+        ``prime``. Nothing with a direct solver. The set-up is not counted in a record.
+        """
+        prime = getattr(self.linear, "prime", None)
+        if prime is None:
+            return
+        assign(self.u, self.x)
+        with self._options:
+            self._load(self.x)
+            states = self.states() if self.states is not None else None
+            self._assemble_jacobian(self.A, states)
+            prime(NewtonRecord())
+
     def merit_here(self) -> float:
         """The line search's merit of the residual at the current unknowns (collective).
 
