@@ -155,8 +155,10 @@ def check_pieces(scene: Scene, fm: FracturedMesh) -> list[str]:
                           "with contact.formulation none nothing holds it (rigid-body motion); "
                           "add a displacement condition on a boundary it touches")
     c = scene.contact
-    frictionless = c.friction == "frictionless" or (c.friction == "coulomb"
-                                                    and c.friction_coefficient == 0)
+    frictionless = (c.friction == "frictionless"
+                    or (c.friction == "coulomb" and c.friction_coefficient == 0)
+                    or (c.friction == "tresca" and c.slip_bound is not None
+                        and c.slip_bound.is_constant and c.slip_bound.value() == 0))
     held = []
     for k, (text, unheld) in floating.items():
         free = fm.unblocked[k] if k < len(fm.unblocked) else 0
