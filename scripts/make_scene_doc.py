@@ -161,6 +161,10 @@ def header() -> list[str]:
         "the fractures; after meshing, each one at the points where the solver evaluates it "
         "(cell centres, mesh nodes, boundary nodes, fracture face midpoints).",
         "",
+        "**Numbers** (`float`, and the numbers in lists such as a disc's `center`): a number, "
+        "or an expression of the scene `parameters` alone (no `x`, `y`, `z`, `t`), evaluated "
+        "when the scene is read: `radius: a`, `center: [0.5, 0.5, \"h/2\"]`.",
+        "",
         "**Names**: `name` and `probes[i].name` become file names (`results/<name>`, "
         "`probe_<name>.csv`): letters, digits, `_`, `-` and `.`, starting with a letter or "
         "digit.",

@@ -450,6 +450,26 @@ def test_messages_show_plain_numbers_and_names():
         compile_expression("x.sin(1)")
 
 
+def test_a_number_may_be_an_expression_of_the_parameters():
+    """``radius: a`` was accepted and ``radius: a/2`` refused as not a number: a number key
+    takes an expression of the parameters, evaluated once, and refuses x, y, z, t in it."""
+    raw = mechanics_scene(parameters={"w": 0.8})
+    raw["geometry"]["fractures"] = [{"points": [["w/4", 0.5], ["3*w/4", "0.5*w/0.8"]]}]
+    raw["mesh"]["size"] = "w/4"
+    scene = scene_from_dict(raw)
+    assert scene.geometry.fractures[0].points == ((0.2, 0.5), (0.6000000000000001, 0.5))
+    assert scene.mesh.size == 0.2
+    for value, message in (("x/4", "it may use the parameters, not x, y, z or t"),
+                           ("v/4", "or an expression of the parameters: unknown name 'v'"),
+                           ("w/0", "it evaluates to inf")):
+        raw["mesh"]["size"] = value
+        with pytest.raises(ConfigError, match=f"scene key 'mesh.size' = '{value}' must be a "
+                                              "number"):
+            scene_from_dict(raw)
+        with pytest.raises(ConfigError, match=message):
+            scene_from_dict(raw)
+
+
 # -- after meshing: every expression where the solvers evaluate it -------------------------------
 def _mesh(scene):
     from mpi4py import MPI

@@ -635,3 +635,15 @@ def test_csv_junctions_and_boundary_ends_are_accepted(tmp_path):
     raw["geometry"]["fractures"] = net
     assert "give fractures or fracture_file, not both" in error(raw)
 
+
+
+def test_a_fracture_file_in_a_box_is_refused_by_its_own_key(tmp_path):
+    """A fracture file holds 2D polylines; in a box the refusal names it (it named the
+    'geometry.fractures.0' that the file's rows had become, needing a polygon or a disc)."""
+    (tmp_path / "net.csv").write_text("fracture,x0,y0,x1,y1\na,0.2,0.2,0.8,0.8\n")
+    raw = mechanics_scene(geometry={"domain": {"box": [0.0, 0.0, 0.0, 1.0, 1.0, 1.0]},
+                                    "fracture_file": str(tmp_path / "net.csv")})
+    raw["boundary_conditions"] = [{"boundary": "bottom", "displacement": [0.0, 0.0, 0.0]}]
+    msg = error(raw)
+    assert msg.startswith("scene key 'geometry.fracture_file'"), msg
+    assert "in a box (3D) give the fractures as geometry.fractures" in msg

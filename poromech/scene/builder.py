@@ -126,7 +126,22 @@ class Builder:
                 pass
             if value in self.parameters:
                 return float(self.parameters[value])
+            return self._constant_expression(value, path)
         raise ConfigError(f"scene key '{path}' = {format_value(value)} must be a number")
+
+    def _constant_expression(self, value: str, path: str) -> float:
+        """A number given as an expression of the parameters (``radius: a/2``)."""
+        what = f"scene key '{path}' = {format_value(value)} must be a number"
+        try:
+            expr = compile_expression(value, self.parameters)
+        except ExpressionError as err:
+            raise ConfigError(f"{what} or an expression of the parameters: {err}") from None
+        if not expr.is_constant:
+            raise ConfigError(f"{what}: it may use the parameters, not x, y, z or t")
+        number = expr.value()
+        if not np.isfinite(number):
+            raise ConfigError(f"{what}: it evaluates to {number}")
+        return number
 
     def _tuple(self, value: Any, args: tuple, path: str) -> tuple:
         if not isinstance(value, list | tuple):

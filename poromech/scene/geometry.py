@@ -229,6 +229,12 @@ def _check_geometry_sources(geometry) -> None:
                           "file)")
     if geometry.fracture_file is not None and geometry.fractures:
         raise ConfigError("scene key 'geometry': give fractures or fracture_file, not both")
+    if (geometry.fracture_file is not None and geometry.domain is not None
+            and geometry.domain.box is not None):
+        raise ConfigError(f"scene key 'geometry.fracture_file' = {geometry.fracture_file!r}: a "
+                          "fracture file gives 2D polylines (a rectangle or polygon domain); in a "
+                          "box (3D) give the fractures as geometry.fractures, each a polygon or "
+                          "a disc")
 
 
 def _fractures_from_csv(geometry):
