@@ -96,8 +96,13 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--restart", metavar="OUTDIR", type=_directory,
                      help="continue the run in OUTDIR from its last completed step (its scene "
                           "is read from OUTDIR/poromech_scene.yaml; no scene or --set)")
-    val = sub.add_parser("validate", help="check a scene (file or shipped name) and exit")
+    val = sub.add_parser("validate", help="check a scene (file or shipped name) and exit; "
+                         "without meshing unless --mesh")
     val.add_argument("scene", help="scene YAML file or shipped scene name")
+    val.add_argument("--mesh", action="store_true",
+                     help="also mesh the scene and build its solvers, for the checks that need "
+                          "the mesh (fields at the mesh points, the initial stress's "
+                          "equilibrium, pieces held only by contact); nothing is solved")
     val.add_argument("--force", action="store_true", help="do not refuse a mesh too large "
                      "for this machine's memory")
     for sp in (run, val):
@@ -221,8 +226,27 @@ def _check(args, petsc_opts: dict, comm):
 
 def _validate(args, petsc_opts: dict, comm) -> int:
     scene, _, est = _check(args, petsc_opts, comm)
-    log.info("%s: valid (%s, physics %s; ~%.2g cells, ~%.2g GB estimated)", args.scene,
-             scene.name, scene.physics, est.cells, est.memory / 1e9)
+    if not args.mesh:
+        log.info("%s: valid (%s, physics %s; ~%.2g cells, ~%.2g GB estimated; not meshed: "
+                 "--mesh also runs the checks on the mesh)", args.scene, scene.name,
+                 scene.physics, est.cells, est.memory / 1e9)
+        return 0
+    from poromech.run import Run
+
+    class _Built(Exception):
+        """The physics is built: stop before anything is solved."""
+
+    def stop(physics) -> None:
+        raise _Built
+
+    with Run(scene, comm=comm, prepare=stop) as run:
+        try:
+            run.execute()
+        except _Built:
+            pass
+    mesh = run.summary["mesh"]
+    log.info("%s: valid (%s, physics %s; meshed: %d cells, %d fracture faces; nothing solved)",
+             args.scene, scene.name, scene.physics, mesh["cells"], mesh["fracture_faces"])
     return 0
 
 

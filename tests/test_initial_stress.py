@@ -181,3 +181,27 @@ def test_poroelastic_column_at_rest_under_gravity():
         sag = 2300.0 * 9.81 * 10.0**2 / 1.0e10
         assert np.abs(u).max(initial=0.0) < 1e-7 * sag
     assert all(r["converged"] and r["g_evaluations"] <= 2 for r in summary["solves"])
+
+
+def test_validate_with_mesh_runs_the_checks_on_the_mesh(tmp_path, capsys):
+    """``poromech validate`` checks the keys without meshing, and says so; ``--mesh`` also meshes
+    and builds the solvers, and refuses (exit 2) what a run would refuse after meshing: here an
+    initial stress out of balance at the traction-free top (validate said "valid" for it)."""
+    import yaml
+
+    from poromech.cli import main
+
+    raw = lithostatic(material={"young": E, "poisson": 0.25, "density": "rho",
+                                "initial_stress": ["k0*rho*g*(y - 100)", "rho*g*(y - 100)",
+                                                   0.0]})
+    path = tmp_path / "scene.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    assert main(["validate", str(path)]) == 0
+    assert "not meshed: --mesh also runs the checks on the mesh" in capsys.readouterr().out
+    assert main(["validate", str(path), "--mesh"]) == 2
+    last = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "scene key 'material.initial_stress' is not in equilibrium" in last
+    path.write_text(yaml.safe_dump(lithostatic()))
+    assert main(["validate", str(path), "--mesh"]) == 0
+    assert "meshed: " in capsys.readouterr().out
+    assert not (tmp_path / "results").exists()  # nothing written
