@@ -44,7 +44,8 @@ def type_name(tp) -> str:
         return " \\| ".join(str(a) for a in args)
     if origin is tuple:
         if len(args) == 2 and args[1] is Ellipsis:
-            return f"list of {type_name(args[0])}"
+            item = type_name(args[0])
+            return f"list of ({item})" if " or " in item else f"list of {item}"
         return "[" + ", ".join(type_name(a) for a in args) + "]"
     if origin is dict:
         return f"mapping of {type_name(args[1])}"

@@ -6,6 +6,7 @@ ends both ranks with the same status.
 """
 
 import dataclasses
+import datetime
 import json
 import subprocess
 import sys
@@ -448,6 +449,20 @@ def test_messages_show_plain_numbers_and_names():
     assert "np." not in str(info.value)
     with pytest.raises(ExpressionError, match="function 'x.sin'"):
         compile_expression("x.sin(1)")
+
+
+def test_yaml_dates_and_booleans_are_named_as_such():
+    """``--set name=2026-01-01`` and ``formulation=no`` are a date and a boolean to YAML; the
+    messages showed Python's datetime.date(2026, 1, 1) and False."""
+    raw = mechanics_scene()
+    raw["name"] = datetime.date(2026, 1, 1)
+    with pytest.raises(ConfigError, match=r"'name' = 2026-01-01 \(a date to YAML: quote it"):
+        scene_from_dict(raw)
+    raw = mechanics_scene()
+    raw["contact"] = {"formulation": False}
+    with pytest.raises(ConfigError, match=r"= false \(a YAML boolean, as are yes/no/on/off: "
+                                          r"quote text\) is not one of"):
+        scene_from_dict(raw)
 
 
 def test_a_number_may_be_an_expression_of_the_parameters():

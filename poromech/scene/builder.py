@@ -9,6 +9,7 @@ missing keys are refused. Every failure is a one-line :class:`~poromech.errors.C
 from __future__ import annotations
 
 import dataclasses
+import datetime
 import types
 import typing
 from collections.abc import Mapping
@@ -27,6 +28,10 @@ def format_value(value: Any) -> str:
     """A value as it appears in an error message (at most 60 characters)."""
     if isinstance(value, np.generic):
         value = value.item()
+    if isinstance(value, datetime.date):  # YAML reads 2026-01-01 as a date
+        return f"{value.isoformat()} (a date to YAML: quote it for text)"
+    if isinstance(value, bool):  # YAML 1.1 reads yes/no/on/off as booleans too
+        return f"{str(value).lower()} (a YAML boolean, as are yes/no/on/off: quote text)"
     text = repr(value)
     return text if len(text) <= 60 else text[:57] + "..."
 

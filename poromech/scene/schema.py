@@ -81,7 +81,7 @@ class Disc:
     center: tuple[float, float, float] = field(metadata=doc("centre [x, y, z]", "m"))
     normal: tuple[float, float, float] = field(
         metadata=doc("normal n⁺ [n_x, n_y, n_z] (any length but 0): the + side is the side it "
-                     "points out of", "m"))
+                     "points out of"))
     radius: float = field(metadata=doc("radius", "m", gt=0))
 
 
