@@ -7,7 +7,9 @@ For every step ``tⁿ⁻¹ → tⁿ`` the loop
 
 1. solves (``physics.solve(t, dt)``); when that fails, the state of ``tⁿ⁻¹`` is restored
    (``physics.reject()``) and the step is retried as two halves, then quarters, ... up to
-   ``time.max_cuts`` times (sub-steps are solved and accepted but not written); when the last
+   ``time.max_cuts`` times (sub-steps are solved and accepted but not written), or until a
+   halved step starts from the same residual as the failed one (the loads do not change with
+   t over it: a shorter step would solve the same problem); when the last
    cut fails, the run stops with :class:`~poromech.errors.SolverError` (exit status 3), every
    output of the earlier steps being kept. The record of a cut step counts the work of all its
    attempts (``Physics.counters`` summed over them), and lists them under ``attempts``;
@@ -94,6 +96,12 @@ class stop_signals:
         self.flag.restore()
 
 
+#: A cut attempt whose first residual equals the failed longer attempt's from the same start to
+#: this relative precision solves the same problem (loads constant in t over the step): the cuts
+#: stop there. Different loads move the first residual far more than rounding does.
+SAME_PROBLEM = 1e-12
+
+
 def _advance(physics: Physics, t0: float, t1: float, max_cuts: int,
              static: bool) -> tuple[StepResult, list[dict]]:
     """Solve from ``t0`` to ``t1``, cutting the step on failure (see the module docstring)."""
@@ -103,9 +111,23 @@ def _advance(physics: Physics, t0: float, t1: float, max_cuts: int,
             raise SolverError(result.message, result.reason, result.history, result.record)
         return result, []
     dt, cuts, attempts = t1 - t0, 0, []
+    failed_from = None  # (start time, first residual) of the last failed attempt
     while True:
         t = t1 if t0 + dt >= t1 * (1 - 1e-12) else t0 + dt
         result = physics.solve(t, t - t0)
+        if not result.converged and result.history:
+            first = float(result.history[0])
+            if (failed_from is not None and failed_from[0] == t0
+                    and abs(first - failed_from[1]) <= SAME_PROBLEM * abs(failed_from[1])):
+                attempts.append({"time": t, "converged": False, **_brief(result.record)})
+                raise SolverError(
+                    f"{result.message} (the step cut to t = {t:g} s started from the residual "
+                    f"of the longer step, {first:.6g}: the loads do not change with t there, "
+                    "and a shorter step would solve the same problem; not cut further)",
+                    result.reason, result.history,
+                    {**_totals(result.record, attempts, physics.counters),
+                     "attempts": attempts})
+            failed_from = (t0, first)
         if result.converged:
             if t == t1 and not attempts:
                 return result, attempts

@@ -67,3 +67,33 @@ def test_a_failed_run_reports_the_work_of_every_attempt():
         run_steps(Halving(0.1), scene(1), MPI.COMM_WORLD, [], lambda k, t: None)
     assert err.value.record["iterations"] == 200
     assert [a["time"] for a in err.value.record["attempts"]] == [0.5, 0.25]
+
+
+class Failing(Halving):
+    """A physics that never converges; its first residual is ``first(t)``."""
+
+    def __init__(self, first):
+        super().__init__(0.0)
+        self.first = first
+
+    def solve(self, t, dt):
+        result = super().solve(t, dt)
+        return StepResult(False, result.record, result.message, result.reason,
+                          [self.first(t), 0.5 * self.first(t)])
+
+
+def test_cuts_stop_when_a_shorter_step_starts_from_the_same_residual():
+    """Loads constant over the step: the cut step starts from the failed step's residual and
+    solves the same problem, so the cuts stop there (they re-solved it max_cuts times, 5 x 100
+    Newton iterations for a `mixed` P1 scene that cannot converge); loads that change with t
+    are cut as far as max_cuts allows."""
+    physics = Failing(lambda t: 3.5e5 * (1 + 1e-14 * t))
+    with pytest.raises(SolverError, match="the loads do not change with t there") as err:
+        run_steps(physics, scene(4), MPI.COMM_WORLD, [], lambda k, t: None)
+    assert physics.calls == [(0.5, 0.5), (0.25, 0.25)]
+    assert [a["time"] for a in err.value.record["attempts"]] == [0.5, 0.25]
+    assert err.value.record["iterations"] == 200
+    physics = Failing(lambda t: 3.5e5 * (1 + t))
+    with pytest.raises(SolverError, match="after 4 step cuts"):
+        run_steps(physics, scene(4), MPI.COMM_WORLD, [], lambda k, t: None)
+    assert len(physics.calls) == 5

@@ -360,8 +360,9 @@ class TimeSpec:
         metadata=doc("listed step end times t_1 < t_2 < ... (instead of final/steps)", "s", gt=0),
     )
     max_cuts: int = field(
-        default=4, metadata=doc("halvings of a failed step before the run stops", "", min=0,
-                                max=20)
+        default=4, metadata=doc("halvings of a failed step before the run stops (fewer when "
+                                "a halved step starts from the failed one's residual: loads "
+                                "constant in t, the same problem)", "", min=0, max=20)
     )
 
     @property
