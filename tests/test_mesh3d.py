@@ -831,3 +831,31 @@ def test_zones_refine_fractures_or_balls():
     plain = estimate_cells_3d(geo, 0.25, 0.1, 0.1, 0.25, 0)
     ratio = (est / rep.num_cells) / (plain / build_mesh_3d(geo, base)[1].num_cells)
     assert 0.8 < ratio < 1.25
+
+
+def test_a_fracture_of_a_few_faces_is_said_to_be_under_resolved(caplog):
+    """A disc of radius 0.02 m in a 0.25 m mesh became a heptagon of 7 faces around one node,
+    every face with the same jump, without a word: a warning now names it."""
+    from poromech.run import FEWEST_FACES_3D, build_mesh, warn_unresolved_fractures
+    from poromech.scene.loading import scene_from_dict
+
+    raw = {"name": "tiny", "physics": "mechanics",
+           "geometry": {"domain": {"box": [0.0, 0.0, 0.0, 1.0, 1.0, 1.0]},
+                        "fractures": [
+                            {"name": "tiny", "disc": {"center": [0.5, 0.5, 0.5],
+                                                      "normal": [0.0, 0.0, 1.0],
+                                                      "radius": 0.02}},
+                            {"name": "big", "disc": {"center": [0.5, 0.5, 0.2],
+                                                     "normal": [0.0, 0.0, 1.0],
+                                                     "radius": 0.15}}]},
+           "mesh": {"size": 0.25, "fracture_size": 0.05},
+           "material": {"young": 1.0e10, "poisson": 0.25},
+           "boundary_conditions": [{"boundary": "bottom", "displacement": [0.0, 0.0, 0.0]},
+                                   {"boundary": "top", "traction": [0.0, 0.0, -1.0e6]}]}
+    fm = build_mesh(scene_from_dict(raw), MPI.COMM_WORLD)
+    counts = np.bincount(fm.fractures.fracture, minlength=2)
+    assert counts[0] < FEWEST_FACES_3D <= counts[1]
+    with caplog.at_level("WARNING", logger="poromech"):
+        warn_unresolved_fractures(fm)
+    said = [r.getMessage() for r in caplog.records]
+    assert len(said) == 1 and said[0].startswith(f"fracture 'tiny' has only {counts[0]} face")
