@@ -693,6 +693,22 @@ def test_mesh_zones_checked_before_meshing(caplog):
     caplog.clear()
     scene_from_dict(raw)
     assert not any("zones" in r.getMessage() for r in caplog.records)
+    # zones that refine nothing were accepted silently: a ball on the fractures that reaches
+    # none, and a size not finer than the one already there
+    raw = mechanics_scene(mesh={"size": 0.1, "zones": [{**zone, "center": [0.05, 0.05]}]})
+    for change, said in (({}, "its ball reaches no fracture"),
+                         ({"center": [0.5, 0.5], "size": 0.2}, "its size 0.2 m is not finer "
+                                                               "than the 0.1 m the fractures"),
+                         ({"center": [0.5, 0.5], "size": 0.2, "region": "ball"},
+                          "its size 0.2 m is not finer than mesh.size 0.1 m"),
+                         ({"center": [0.5, 0.5]}, None)):
+        raw["mesh"]["zones"] = [{**zone, "center": [0.05, 0.05], "region": "fractures",
+                                 **change}]
+        caplog.clear()
+        scene_from_dict(raw)
+        warned = [r.getMessage() for r in caplog.records if "mesh.zones.0" in r.getMessage()]
+        assert (said is None and not warned) or any(said in w for w in warned), (
+            said, [r.getMessage() for r in caplog.records])
 
 
 def test_condensation_in_3d_is_reported_as_without_effect(caplog):

@@ -33,6 +33,7 @@ __all__ = [
     "check_box_geometry",
     "fracture_distance",
     "intersection_segments",
+    "point_segment_distance",
 ]
 
 #: Names of the box faces: x-, x+, y-, y+, z-, z+.
@@ -81,7 +82,7 @@ def _cross2(a, b):
     return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
 
 
-def _point_segment_distance(p: Array, a: Array, b: Array) -> Array:
+def point_segment_distance(p: Array, a: Array, b: Array) -> Array:
     """Distance of points ``p (m, d)`` to segments ``[a, b]`` (``(e, d)``), shape ``(m, e)``."""
     ab = b - a
     rel = p[:, None, :] - a[None]
@@ -109,15 +110,15 @@ def _segment_segment_distance(a: Array, b: Array, c: Array, d: Array) -> Array:
         s = np.clip(np.where(uu > 0, (uv * t - uw) / uu, 0.0), 0.0, 1.0)
     gap = w + s[..., None] * u[:, None, :] - t[..., None] * v[None]
     best = np.linalg.norm(gap, axis=2)
-    ends = np.minimum(_point_segment_distance(a, c, d), _point_segment_distance(b, c, d))
-    ends2 = np.minimum(_point_segment_distance(c, a, b), _point_segment_distance(d, a, b)).T
+    ends = np.minimum(point_segment_distance(a, c, d), point_segment_distance(b, c, d))
+    ends2 = np.minimum(point_segment_distance(c, a, b), point_segment_distance(d, a, b)).T
     return np.minimum(best, np.minimum(ends, ends2))
 
 
 def _in_polygon_2d(p: Array, poly: Array, tol: float) -> npt.NDArray[np.bool_]:
     """Points ``p (m, 2)`` inside the polygon or within ``tol`` of its boundary."""
     a, b = poly, np.roll(poly, -1, axis=0)
-    on = _point_segment_distance(p, a, b).min(axis=1) <= tol
+    on = point_segment_distance(p, a, b).min(axis=1) <= tol
     y = p[:, 1:2]
     crosses = (a[None, :, 1] > y) != (b[None, :, 1] > y)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -263,7 +264,7 @@ class Fracture3D:
         if self.is_disc:
             return np.abs(np.linalg.norm(uv, axis=1) - self.radius)
         poly = self.to_plane(self.points)
-        return _point_segment_distance(uv, poly, np.roll(poly, -1, axis=0)).min(axis=1)
+        return point_segment_distance(uv, poly, np.roll(poly, -1, axis=0)).min(axis=1)
 
     def projects_inside(self, points, tol: float = 0.0) -> npt.NDArray[np.bool_]:
         """Points whose projection onto the plane is inside the fracture (or within ``tol``)."""
@@ -624,7 +625,7 @@ def _signed_area_2d(p: Array) -> float:
 
 def _strictly_inside(points: Array, poly: Array, margin: float) -> npt.NDArray[np.bool_]:
     """Points inside a 2D polygon and farther than ``margin`` from its boundary."""
-    far = _point_segment_distance(points, poly, np.roll(poly, -1, axis=0)).min(axis=1) > margin
+    far = point_segment_distance(points, poly, np.roll(poly, -1, axis=0)).min(axis=1) > margin
     return far & _in_polygon_2d(points, poly, 0.0)
 
 
@@ -649,7 +650,7 @@ def _inner_probes(p: Array, q: Array, tol: float, eps: float) -> Array:
     for a, b in zip(p, np.roll(p, -1, axis=0), strict=True):
         e = b - a
         t = (q - a) @ e / (e @ e)
-        on = _point_segment_distance(q, a[None], b[None])[:, 0] <= tol
+        on = point_segment_distance(q, a[None], b[None])[:, 0] <= tol
         cuts = np.unique(np.concatenate([[0.0, 1.0], t[on & (t > 0) & (t < 1)]]))
         mid = 0.5 * (cuts[1:] + cuts[:-1])
         inward = np.array([-e[1], e[0]]) / np.linalg.norm(e)

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from poromech.errors import ConfigError
+from poromech.geometry.box import point_segment_distance
 from poromech.geometry.plane import PlaneGeometry
 from poromech.scene.schema import NITSCHE_FORMULATIONS, Scene
 
@@ -239,7 +240,32 @@ def _zone_unused(scene: Scene, zone, geo: PlaneGeometry) -> str | None:
         return "the mesh is read from geometry.mesh.file (zones size the meshes gmsh makes)"
     if zone.region == "fractures" and not geo.fracture_names:
         return "the scene has no fractures for the zone to refine (region: ball refines the ball)"
+    m = scene.mesh
+    if zone.region == "fractures":
+        around = m.fracture_size or m.size
+        if zone.size >= around:
+            return (f"its size {zone.size:g} m is not finer than the {around:g} m the fractures "
+                    "have (mesh.fracture_size, else mesh.size)")
+        if _distance_to_fractures(geo, np.asarray(zone.center, dtype=float)) >= zone.radius:
+            return ("its ball reaches no fracture, and region fractures refines only the "
+                    "fractures in it (region: ball refines the rock)")
+    elif zone.size >= m.size:
+        return f"its size {zone.size:g} m is not finer than mesh.size {m.size:g} m"
     return None
+
+
+def _distance_to_fractures(geo, point: np.ndarray) -> float:
+    """The distance from ``point`` to the nearest fracture (m); inf without fractures."""
+    if hasattr(geo, "face_plane"):  # a box (3D): planar polygons and discs
+        out = np.inf
+        for fr in geo.fractures:
+            h = float(fr.height(point)[0])
+            r = 0.0 if fr.projects_inside(point)[0] else float(fr.rim_distance(point)[0])
+            out = min(out, float(np.hypot(h, r)))
+        return out
+    p = np.atleast_2d(point[:2])
+    return min((float(np.min(point_segment_distance(p, f[:-1], f[1:]))) for f in geo.fractures),
+               default=np.inf)
 
 
 def _fracture_ends_on(geo: PlaneGeometry, name: str) -> bool:
