@@ -696,7 +696,9 @@ def test_mesh_zones_checked_before_meshing(caplog):
     # zones that refine nothing were accepted silently: a ball on the fractures that reaches
     # none, and a size not finer than the one already there
     raw = mechanics_scene(mesh={"size": 0.1, "zones": [{**zone, "center": [0.05, 0.05]}]})
-    for change, said in (({}, "its ball reaches no fracture"),
+    for change, said in (({"transition": 0.1}, "no fracture is within its radius and "
+                                               "transition (0.2 m) of its centre"),
+                         ({}, None),  # the default transition, 0.4 m, reaches the fractures
                          ({"center": [0.5, 0.5], "size": 0.2}, "its size 0.2 m is not finer "
                                                                "than the 0.1 m the fractures"),
                          ({"center": [0.5, 0.5], "size": 0.2, "region": "ball"},

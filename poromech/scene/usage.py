@@ -246,9 +246,11 @@ def _zone_unused(scene: Scene, zone, geo: PlaneGeometry) -> str | None:
         if zone.size >= around:
             return (f"its size {zone.size:g} m is not finer than the {around:g} m the fractures "
                     "have (mesh.fracture_size, else mesh.size)")
-        if _distance_to_fractures(geo, np.asarray(zone.center, dtype=float)) >= zone.radius:
-            return ("its ball reaches no fracture, and region fractures refines only the "
-                    "fractures in it (region: ball refines the rock)")
+        reach = zone.radius + (zone.transition or m.transition or 4 * m.size)
+        if _distance_to_fractures(geo, np.asarray(zone.center, dtype=float)) >= reach:
+            return (f"no fracture is within its radius and transition ({reach:g} m) of its "
+                    "centre, and region fractures refines only the fractures there (region: "
+                    "ball refines the rock)")
     elif zone.size >= m.size:
         return f"its size {zone.size:g} m is not finer than mesh.size {m.size:g} m"
     return None
