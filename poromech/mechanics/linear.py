@@ -771,10 +771,11 @@ class IterativeSolver:
 
         GAMG aggregates the unknowns and builds its prolongators at its first set-up only, and
         keeps them for the later Jacobians (PETSc reuses the interpolation of a matrix of the
-        same pattern: a set-up then forms the Galerkin products): the coarse spaces of a run
-        come from its first Jacobian. A restart primes the solver with the Jacobian of the run's
-        initial unknowns, so that it coarsens the matrix the run it continues coarsened; the
-        next solve compares its Jacobian with this one and sets up, lags or reuses as usual.
+        same pattern: a set-up then forms the Galerkin products; only a change of GAMG's level
+        smoother builds them again): the coarse spaces of a run come from its first Jacobian.
+        A restart primes the solver with the Jacobian of the run's initial unknowns, so that it
+        coarsens the matrix the run it continues coarsened; the next solve compares its
+        Jacobian with this one and sets up, lags or reuses as usual.
         """
         self._unchanged()  # the fingerprint of this Jacobian
         self._set_up(record)

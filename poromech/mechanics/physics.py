@@ -663,7 +663,7 @@ class MechanicsPhysics:
         """Build a Krylov preconditioner's coarse spaces where the run being continued did.
 
         GAMG (on the Jacobian, on the Schur complement, or on the p-multigrid's P1 level) keeps
-        the aggregates and prolongators of its first set-up for the whole run
+        the aggregates and prolongators of its first set-up (until a change of its level smoother)
         (:meth:`~poromech.mechanics.linear.IterativeSolver.prime`), and the first Jacobian of a
         run is that of its initial unknowns at the first step's time. A restart sets the
         preconditioner up there first, from the still initial unknowns (one assembly and one
