@@ -272,6 +272,7 @@ class Run:
         if meta.get("initial"):
             self.summary["initial"] = meta["initial"]
         self.summary["restarted_from"] = {"step": start, "time": resume}
+        self.summary["completed_steps"] = start  # a run restarted after its last step has none
         log.info("restart after step %d (t = %g s)", start, resume)
         return start, resume
 

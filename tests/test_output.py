@@ -93,6 +93,14 @@ def test_kill_9_then_restart_reproduces_the_run(tmp_path):
         assert np.abs(fa - fb).max() <= 1e-8 * np.abs(fa).max()
     rows = (part / "fractures.csv").read_text().splitlines()
     assert len(rows) == 1 + 8 * a["mesh"]["fracture_faces"]  # no step written twice
+    # a restart of the finished run has nothing to do; its summary still counts the steps
+    # (it lost completed_steps)
+    again = subprocess.run([*POROMECH, "run", "--restart", str(part), "-q"], cwd=ROOT,
+                           capture_output=True, text=True, timeout=600)
+    assert again.returncode == 0, again.stderr
+    c = json.loads((part / "summary.json").read_text())
+    assert c["status"] == "converged" and c["completed_steps"] == 8 and len(c["solves"]) == 8
+    assert (part / "fractures.csv").read_text().splitlines() == rows
 
 
 @pytest.mark.parametrize("signum, code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
