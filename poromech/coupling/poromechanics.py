@@ -520,14 +520,16 @@ class Poromechanics:
         porosity = None if step is None else pb.porosity(step)
         self.accepted.accept(porosity, (pb.properties.aperture if step is None
                                         else pb.fracture_volume(step)).copy())
-        if porosity is not None and not self._warned_porosity:
+        # without flow.porosity (φ⁰ = 0) the written porosity is its change, negative wherever
+        # the rock compacts: nothing to warn of (the storage uses the changes only)
+        if (porosity is not None and not self._warned_porosity
+                and self.scene.flow.porosity > 0):
             least = self.comm.allreduce(float(porosity.min(initial=np.inf)), op=MPI.MIN)
             if least < 0:
                 self._warned_porosity = True
-                log.warning("the porosity is negative at t = %g s (%.3g; the linearized "
-                            "φ = φ⁰ + b ∇·(u - u⁰) + (p - p⁰)/M left its range): the matrix "
-                            "storage is meaningless there (flow.porosity, flow.biot_modulus?)",
-                            t, least)
+                log.warning("the porosity is negative at t = %g s (%.3g): the linearized "
+                            "φ = φ⁰ + b ∇·(u - u⁰) + (p - p⁰)/M has left its physical range "
+                            "there (flow.porosity, flow.biot_modulus?)", t, least)
         self.history = [*self.history[-1:], (t, self._pressures())]
         self.continuation.accept()
 
