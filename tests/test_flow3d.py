@@ -229,6 +229,10 @@ def test_scene_with_partial_boundaries(tmp_path):
     ("flow.permeability", {"permeability": [0.0]}, "positive definite"),  # not a LinAlgError
     ("flow.aperture", {"aperture": "x - 2"}, ", z="),  # the point with its z
     ("flow.permeability", {"permeability": [0.0, 0.0, 0.0]}, "positive definite"),
+    # a 2D [k_xx, k_xy, k_yy] brought to 3D: says how it is read, no grid point for a constant
+    ("flow.permeability", {"permeability": [1e-12, 0.0, 1e-12]},
+     "= [1e-12, 0.0, 1e-12] is not allowed: read as [k_xx, k_yy, k_zz] in 3D"),
+    ("flow.permeability", {"permeability": ["1e-12*(1 + x)", 0.0, 1e-12]}, "at x="),
     ("flow.boundary_conditions.1.boundary", {"boundary": "left", "where": None},
      "already has a flow condition"),
 ])

@@ -208,13 +208,17 @@ def check_permeability(perm, points: np.ndarray, times, what: str = "") -> None:
             i = int(np.flatnonzero(bad)[0])
             value = [float(c[i]) for c in k]
             where = f" ({what})" if what else ""
+            uniform = all(e.is_uniform for e in perm)
+            at = "" if uniform else f" at x={x[i]:g}, y={y[i]:g}"
             if three:
+                at += "" if uniform else f", z={points[i, 2]:g}"
+                entries = {1: "[k]", 3: "[k_xx, k_yy, k_zz]",
+                           6: "[k_xx, k_xy, k_xz, k_yy, k_yz, k_zz]"}[len(perm)]
                 raise ConfigError(
-                    f"scene key 'flow.permeability' = {value} at x={x[i]:g}, y={y[i]:g}, "
-                    f"z={points[i, 2]:g}{where} is not allowed: must be a finite, positive "
-                    "definite tensor")
+                    f"scene key 'flow.permeability' = {value}{at}{where} is not allowed: read as "
+                    f"{entries} in 3D, it must be a finite, positive definite tensor")
             raise ConfigError(
-                f"scene key 'flow.permeability' = {value} at x={x[i]:g}, y={y[i]:g}{where} is "
+                f"scene key 'flow.permeability' = {value}{at}{where} is "
                 "not allowed: must be positive definite (k_xx > 0, k_yy > 0, k_xx k_yy > k_xy²)"
             )
 
