@@ -164,7 +164,8 @@ def header() -> list[str]:
         "",
         "**Numbers** (`float`, and the numbers in lists such as a disc's `center`): a number, "
         "or an expression of the scene `parameters` alone (no `x`, `y`, `z`, `t`), evaluated "
-        "when the scene is read: `radius: a`, `center: [0.5, 0.5, \"h/2\"]`.",
+        "when the scene is read: `radius: a`, `center: [0.5, 0.5, \"h/2\"]`. A parameter may "
+        "be an expression of the parameters above it (`parameters: {a: 0.4, b: a/2}`).",
         "",
         "**Names**: `name` and `probes[i].name` become file names (`results/<name>`, "
         "`probe_<name>.csv`): letters, digits, `_`, `-` and `.`, starting with a letter or "

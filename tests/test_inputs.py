@@ -451,6 +451,20 @@ def test_messages_show_plain_numbers_and_names():
         compile_expression("x.sin(1)")
 
 
+def test_a_parameter_may_use_the_parameters_above_it(caplog):
+    """``parameters: {a: 0.4, b: a/2}`` was refused (unknown name 'a', listing x, y, z, t as
+    allowed); a parameter used only by another one is not reported as unused."""
+    raw = mechanics_scene(parameters={"a": 0.4, "b": "a/2"}, mesh={"size": "b/2"})
+    caplog.clear()
+    assert scene_from_dict(raw).mesh.size == 0.1
+    assert not [r for r in caplog.records if "parameters.a" in r.getMessage()]
+    raw["parameters"] = {"b": "a/2", "a": 0.4}
+    with pytest.raises(ConfigError, match=r"'parameters.b' = 'a/2' must be a number or an "
+                                          r"expression of the parameters: unknown name 'a' "
+                                          r"\(allowed: e, pi\); a parameter may use those above"):
+        scene_from_dict(raw)
+
+
 def test_yaml_dates_and_booleans_are_named_as_such():
     """``--set name=2026-01-01`` and ``formulation=no`` are a date and a boolean to YAML; the
     messages showed Python's datetime.date(2026, 1, 1) and False."""

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
+import re
 import types
 import typing
 from collections.abc import Mapping
@@ -139,8 +140,12 @@ class Builder:
         what = f"scene key '{path}' = {format_value(value)} must be a number"
         try:
             expr = compile_expression(value, self.parameters)
-        except ExpressionError as err:
-            raise ConfigError(f"{what} or an expression of the parameters: {err}") from None
+        except ExpressionError as err:  # a number takes no x, y, z, t: not listed as allowed
+            text = re.sub(r" \(allowed: [^)]*\)", "", str(err))
+            names = ", ".join(sorted([*self.parameters, "e", "pi"]))
+            above = "; a parameter may use those above it" if path.startswith("parameters.") else ""
+            raise ConfigError(f"{what} or an expression of the parameters: {text} (allowed: "
+                              f"{names}){above}") from None
         if not expr.is_constant:
             raise ConfigError(f"{what}: it may use the parameters, not x, y, z or t")
         number = expr.value()

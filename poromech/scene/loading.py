@@ -299,8 +299,9 @@ def scene_from_dict(raw: Mapping) -> Scene:
         if name in reserved_names():
             raise ConfigError(f"scene key 'parameters.{name}' would hide the variable, constant "
                               f"or function {name!r} of expressions (allowed: another name)")
-    builder = Builder({})
-    numeric = {k: builder.build(v, float, f"parameters.{k}") for k, v in params.items()}
+    numeric: dict[str, float] = {}
+    for k, v in params.items():  # each one may use those above it
+        numeric[k] = Builder(numeric).build(v, float, f"parameters.{k}")
     scene = Builder(numeric).dataclass(raw, Scene, "")
     check_name("name", scene.name)
     if scene.geometry is None:

@@ -315,6 +315,7 @@ def unused_parameters(raw: Mapping) -> list[str]:
                 return
             names.update(n.id for n in ast.walk(tree) if isinstance(n, ast.Name))
     walk({k: v for k, v in raw.items() if k != "parameters"})
+    walk(list(params.values()))  # a parameter used by another one is used
     return [str(p) for p in params if str(p) not in names]
 
 
