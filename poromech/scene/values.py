@@ -213,7 +213,7 @@ def check_permeability(perm, points: np.ndarray, times, what: str = "") -> None:
             if three:
                 at += "" if uniform else f", z={points[i, 2]:g}"
                 entries = {1: "[k]", 3: "[k_xx, k_yy, k_zz]",
-                           6: "[k_xx, k_xy, k_xz, k_yy, k_yz, k_zz]"}[len(perm)]
+                           6: "[k_xx, k_xy, k_xz, k_yy, k_yz, k_zz]"}.get(len(perm), "a tensor")
                 raise ConfigError(
                     f"scene key 'flow.permeability' = {value}{at}{where} is not allowed: read as "
                     f"{entries} in 3D, it must be a finite, positive definite tensor")
