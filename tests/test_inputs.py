@@ -8,6 +8,7 @@ ends both ranks with the same status.
 import dataclasses
 import datetime
 import json
+import re
 import subprocess
 import sys
 import time
@@ -725,6 +726,27 @@ def test_mesh_zones_checked_before_meshing(caplog):
         warned = [r.getMessage() for r in caplog.records if "mesh.zones.0" in r.getMessage()]
         assert (said is None and not warned) or any(said in w for w in warned), (
             said, [r.getMessage() for r in caplog.records])
+    # a zone that another asks for a size at most its own everywhere (ball and transition
+    # inside the other's) refines nothing, the later of two equal ones; it was not reported
+    big = {"center": [0.5, 0.5], "radius": 0.2, "size": 0.01}
+    for zones, said in (([big, {**big, "radius": 0.1, "size": 0.02}], {1: 0}),
+                        ([big, dict(big)], {1: 0}),
+                        ([{**big, "radius": 0.1, "size": 0.02}, big], {0: 1}),
+                        ([big, {**big, "radius": 0.1, "size": 0.005}], {}),
+                        ([big, {**big, "center": [0.65, 0.5], "size": 0.02}], {}),  # sticks out
+                        ([big, {**big, "transition": 0.8, "size": 0.02}], {}),
+                        ([{**big, "region": "ball"}, {**big, "radius": 0.1, "size": 0.02}],
+                         {1: 0}),
+                        ([big, {**big, "radius": 0.1, "size": 0.02, "region": "ball"}], {})):
+        raw["mesh"]["zones"] = zones
+        caplog.clear()
+        scene_from_dict(raw)
+        warned = {int(m.group(1)): r.getMessage() for r in caplog.records
+                  if (m := re.search(r"'mesh\.zones\.(\d)\.size' has no effect",
+                                     r.getMessage()))}
+        assert set(warned) == set(said), (zones, warned)
+        for i, other in said.items():
+            assert f"mesh.zones.{other} asks for a size at most its own" in warned[i]
 
 
 def test_condensation_in_3d_is_reported_as_without_effect(caplog):

@@ -431,6 +431,10 @@ REPORTED = [
     ("mechanics", "contact.beta_n", 1.0e12, {"geometry.fractures": DELETE}),
     ("mechanics", "mesh.tip_size", 0.05, {"geometry.fractures": DELETE}),
     ("mechanics", "mesh.zones.0.size", 0.03, {"geometry.fractures": DELETE}),
+    # a zone inside a zone at least as fine (the finest size asked is meshed)
+    ("mechanics", "mesh.zones.1.size", 0.06,
+     {"mesh.zones": [{"center": [0.5, 0.5], "radius": 0.2, "size": 0.04},
+                     {"center": [0.55, 0.5], "radius": 0.1, "size": 0.05}]}),
     ("mechanics", "fracture_pressure", "1e5", {"geometry.fractures": DELETE}),
     ("mechanics", "output.fractures_csv", False, {"geometry.fractures": DELETE}),
     ("mechanics", "solver.condensation", False, {}),

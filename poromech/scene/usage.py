@@ -211,7 +211,7 @@ def _by_entry(scene: Scene, key: str, geo: PlaneGeometry) -> str | None:
     """
     parts = key.split(".")
     if parts[:2] == ["mesh", "zones"] and len(parts) >= 4:
-        return _zone_unused(scene, scene.mesh.zones[int(parts[2])], geo)
+        return _zone_unused(scene, int(parts[2]), geo)
     if scene.flow is None or parts[0] != "flow":
         return None
     if len(parts) == 2 and parts[1] in _OVERRIDDEN_BY and geo.fracture_names:
@@ -234,8 +234,9 @@ def _by_entry(scene: Scene, key: str, geo: PlaneGeometry) -> str | None:
     return None
 
 
-def _zone_unused(scene: Scene, zone, geo: PlaneGeometry) -> str | None:
-    """Why a ``mesh.zones`` entry does not change the mesh, or None."""
+def _zone_unused(scene: Scene, index: int, geo: PlaneGeometry) -> str | None:
+    """Why the ``mesh.zones`` entry ``index`` does not change the mesh, or None."""
+    zone = scene.mesh.zones[index]
     if scene.geometry is not None and scene.geometry.mesh is not None:
         return "the mesh is read from geometry.mesh.file (zones size the meshes gmsh makes)"
     if zone.region == "fractures" and not geo.fracture_names:
@@ -253,7 +254,40 @@ def _zone_unused(scene: Scene, zone, geo: PlaneGeometry) -> str | None:
                     "ball refines the rock)")
     elif zone.size >= m.size:
         return f"its size {zone.size:g} m is not finer than mesh.size {m.size:g} m"
+    for other in range(len(m.zones)):
+        # of two equal zones the later one is reported
+        if other != index and _zone_covers(scene, other, index) and not (
+                other > index and _zone_covers(scene, index, other)):
+            return (f"mesh.zones.{other} asks for a size at most its own wherever its ball "
+                    "and transition reach (the mesh takes the finest size asked)")
     return None
+
+
+def _zone_covers(scene: Scene, a: int, b: int) -> bool:
+    """Whether the size field of zone ``a`` is at most zone ``b``'s everywhere.
+
+    A zone's ball field (poromech.mesh.generate.zone_fields) is ``s`` within ``R`` of its
+    centre, growing linearly to ``mesh.size`` over ``t``; ``a``'s at distance ``r + δ`` from
+    its centre (``δ`` between the centres) bounds it on the points at ``r`` from ``b``'s centre,
+    with equality along the ray from ``a``'s centre through ``b``'s, so comparing the two
+    piecewise-linear profiles at their kinks decides. On the fractures a zone is the larger of
+    its ball and a size growing from ``s`` over ``t`` away from the fractures: ``a`` on the
+    fractures covers only such a zone, of a size not finer and a transition not longer.
+    """
+    m = scene.mesh
+    za, zb = m.zones[a], m.zones[b]
+    ta, tb = (z.transition or m.transition or 4 * m.size for z in (za, zb))
+    if za.region == "fractures" and (zb.region != "fractures" or za.size > zb.size
+                                     or ta < tb):
+        return False
+    delta = float(np.linalg.norm(np.subtract(za.center, zb.center, dtype=float)))
+
+    def field(z, t: float, r: float) -> float:
+        return z.size + (m.size - z.size) * min(max((r - z.radius) / t, 0.0), 1.0)
+
+    kinks = (0.0, zb.radius, zb.radius + tb, za.radius - delta, za.radius + ta - delta)
+    return all(field(za, ta, r + delta) <= field(zb, tb, r) * (1 + 1e-12)
+               for r in kinks if r >= 0.0)
 
 
 def _distance_to_fractures(geo, point: np.ndarray) -> float:
