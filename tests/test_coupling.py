@@ -100,6 +100,23 @@ def test_injection_opens_closes_and_conserves_mass(tmp_path):
     assert totals["g_evaluations"] == sum(r["g_evaluations"] for r in summary["solves"])
 
 
+def test_apertures_clamped_at_the_initial_state_are_counted(tmp_path):
+    """Open fractures (``contact.formulation: none``) that interpenetrate under the confining
+    stress at t = 0 keep 1e-3 d₀: those faces are counted in ``summary.json``'s ``initial`` as
+    in each step's record (the initial count was missing)."""
+    scene = load_scene(INJECTION, ["contact.formulation=none", "time.steps=1",
+                                   "time.final=20", "mesh.size=0.2", "mesh.fracture_size=0.05",
+                                   "mesh.tip_size=0.05"])
+    out = tmp_path / "none"
+    summary = run_scene(scene, out)
+    frac = read_series(out, "fractures")
+    floor = 1e-3 * 1e-5  # the scene's d₀
+    for k, count in enumerate((summary["initial"]["clamped_apertures"],
+                               summary["solves"][0]["clamped_apertures"])):
+        assert count == np.count_nonzero(frac.fields(k)["aperture"] <= floor * (1 + 1e-12))
+    assert summary["initial"]["clamped_apertures"] > 0
+
+
 def test_fracture_fixed_stress_changes_g_not_its_fixed_point(tmp_path):
     """``coupling.fracture_stabilization`` adds ``β_f (p_f - p_in)`` to the fracture balance of
     ``g``: the injected fracture that opens and closes reaches the same states, apertures and

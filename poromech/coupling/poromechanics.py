@@ -337,15 +337,19 @@ class Poromechanics:
                 f"after {rec.iterations} iterations{linear}", rec.reason, rec.residuals,
                 rec.as_dict())
         self.div0 = self.model.cell_divergence()
-        aperture = np.maximum(self.d0 - self._jump_n(), APERTURE_FLOOR * self.d0)
+        d, floor = self.d0 - self._jump_n(), APERTURE_FLOOR * self.d0
+        clamped = int(self.comm.allreduce(int(np.count_nonzero(d < floor))))
+        aperture = np.maximum(d, floor)
         pb.set_aperture(aperture)
         self._step = None
         self.mech.accept(0.0)
         self.accepted.accept(np.full(self.nc, self.porosity0), aperture)
         self.history = [(0.0, self._pressures())]
         self.continuation.reset(pb.cell_pressure, pb.fracture_pressure)
-        log.info("initial equilibrium under p0: %d Newton iterations", rec.iterations)
-        return {"iterations": rec.iterations, "reason": rec.reason}
+        log.info("initial equilibrium under p0: %d Newton iterations%s", rec.iterations,
+                 f"; {clamped} fracture faces closed beyond d0 keep the aperture "
+                 f"{APERTURE_FLOOR:g} d0" if clamped else "")
+        return {"iterations": rec.iterations, "reason": rec.reason, "clamped_apertures": clamped}
 
     def _pressures(self) -> Array:
         return np.concatenate([self.flow.cell_pressure, self.flow.fracture_pressure])
