@@ -347,8 +347,8 @@ class Poromechanics:
         self.history = [(0.0, self._pressures())]
         self.continuation.reset(pb.cell_pressure, pb.fracture_pressure)
         log.info("initial equilibrium under p0: %d Newton iterations%s", rec.iterations,
-                 f"; {clamped} fracture faces closed beyond d0 keep the aperture "
-                 f"{APERTURE_FLOOR:g} d0" if clamped else "")
+                 f"; {clamped} fracture faces closing below {APERTURE_FLOOR:g} d0 keep that "
+                 "aperture" if clamped else "")
         return {"iterations": rec.iterations, "reason": rec.reason, "clamped_apertures": clamped}
 
     def _pressures(self) -> Array:
