@@ -291,3 +291,31 @@ def test_a_flow_step_that_cannot_hold_the_mass_balance_fails(tmp_path):
     tiny = load_scene(ROOT / "configs" / "flow_six_fractures.yaml", ["time={times: [1e-15]}"])
     summary = run_scene(tiny, tmp_path / "tiny", comm)
     assert summary["flow"]["conservation"]["relative_residual"] < 1e-2 * MASS_BALANCE_FAIL
+
+
+def test_an_initial_pressure_without_storage_is_said_to_set_only_the_initial_state(
+        tmp_path, caplog):
+    """A transient flow without ``flow.biot_modulus`` has no storage: each step is the steady
+    solve of its time, whatever the initial pressure, which sets only the written state at
+    t = 0; a given ``flow.initial_pressure`` says so (it was accepted silently)."""
+    said = "'flow.initial_pressure' sets only the state written at t = 0"
+    pressures = []
+    for p0 in (0.0, 3.0e5):
+        raw = flow_scene(initial_pressure=p0)
+        raw["time"] = {"final": 10.0, "steps": 1}
+        caplog.clear()
+        run(raw, tmp_path / f"p{p0:g}")
+        assert any(said in r.getMessage() for r in caplog.records)
+        _, rows = read_csv(tmp_path / f"p{p0:g}" / "probe_bar.csv")
+        pressures.append({t: np.array([float(r[4]) for r in rows if r[0] == t])
+                          for t in ("0", "10")})
+    assert len(pressures[0]["10"]) == 81
+    assert np.allclose(pressures[0]["0"], 0.0) and np.allclose(pressures[1]["0"], 3.0e5)
+    assert np.allclose(pressures[0]["10"], pressures[1]["10"], rtol=1e-8, atol=0.0)
+    raw["flow"]["biot_modulus"] = 1.0e9  # storage: the initial pressure acts at every step
+    caplog.clear()
+    run(raw, tmp_path / "stored")
+    assert not any(said in r.getMessage() for r in caplog.records)
+    _, rows = read_csv(tmp_path / "stored" / "probe_bar.csv")
+    stored = np.array([float(r[4]) for r in rows if r[0] == "10"])
+    assert not np.allclose(stored, pressures[0]["10"], rtol=1e-3, atol=0.0)

@@ -511,7 +511,9 @@ class Flow:
         default=(), metadata=doc("pressure / flux conditions; other boundaries are impervious")
     )
     initial_pressure: Expr = field(
-        default=Expression(0.0), metadata=doc("initial pressure p⁰ (transient)", "Pa")
+        default=Expression(0.0),
+        metadata=doc("initial pressure p⁰ (transient; physics flow without biot_modulus: only "
+                     "the state at t = 0)", "Pa"),
     )
     porosity: float = field(default=0.0, metadata=doc("initial matrix porosity φ⁰ (transient)", "",
                                                       min=0, max=1))

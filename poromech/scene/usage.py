@@ -371,4 +371,10 @@ def check_keys_used(scene: Scene, raw: Mapping, geo: PlaneGeometry) -> list[Unus
                for p in unused_parameters(raw)]
     for u in warned:
         log.warning("scene key '%s' has no effect: %s", u.key, u.reason)
+    if (scene.physics == "flow" and scene.time is not None and scene.flow.biot_modulus is None
+            and "flow.initial_pressure" in given_keys(raw)):
+        # not "no effect": it is the written state at t = 0
+        log.warning("scene key 'flow.initial_pressure' sets only the state written at t = 0: "
+                    "without flow.biot_modulus physics 'flow' has no storage, and each time "
+                    "step solves the steady problem of its time")
     return warned
