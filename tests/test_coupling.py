@@ -117,6 +117,49 @@ def test_apertures_clamped_at_the_initial_state_are_counted(tmp_path):
     assert summary["initial"]["clamped_apertures"] > 0
 
 
+def test_a_darcy_solve_that_does_not_reduce_the_true_residual_is_not_accepted(tmp_path):
+    """Injection into a fracture of aperture 1e-9 m, opened by 5 decades within the first step:
+    the CG + GAMG Darcy solve inside g met its tolerance on the natural norm with a
+    preconditioner lagged across that change while the true residual did not fall (1.05 →
+    1.02), and the step was accepted with a mass balance of 0.76 of the flow. Every accepted
+    step now holds the balance; MUMPS solves the scene (the failure says so)."""
+    from poromech.scene.loading import scene_from_dict  # noqa: PLC0415
+
+    raw = {
+        "name": "thin", "physics": "poromechanics",
+        "parameters": {"T": 400.0, "Q": 2.0e-5, "sigma": 2.0e6},
+        "geometry": {"domain": {"rectangle": [0.0, 0.0, 1.0, 1.0]},
+                     "fractures": [{"name": "A", "points": [[0.2, 0.45], [0.5, 0.5], [0.8, 0.4]]},
+                                   {"name": "B", "points": [[0.5, 0.5], [0.55, 0.8]]}]},
+        "mesh": {"size": 0.08, "fracture_size": 0.03}, "degree": 2,
+        "material": {"young": 5.0e9, "poisson": 0.3, "biot": 0.9},
+        "contact": {"formulation": "mixed", "friction_coefficient": 0.6},
+        "boundary_conditions": [{"boundary": "bottom", "displacement": [0.0, 0.0]},
+                                {"boundary": "top", "traction": ["0.3*sigma", "-sigma"]},
+                                {"boundary": "left", "displacement": [0.0, None]}],
+        "time": {"final": 80.0, "steps": 2},
+        "flow": {"permeability": [1.0e-16], "viscosity": 1.0e-3, "biot_modulus": 1.0e10,
+                 "porosity": 0.1, "aperture": 1.0e-9,
+                 "fracture_source": "where(t <= T/2, Q*min(t/(0.2*T), 1), 0.0)"
+                                    "*(abs(x-0.5)<0.1)",
+                 "boundary_conditions": [{"boundary": "right", "pressure": 0.0},
+                                         {"boundary": "top", "pressure": 0.0}]},
+        "output": {"xdmf": False},
+    }
+    try:
+        summary = run_scene(scene_from_dict(raw), tmp_path / "gamg")
+    except SolverError as err:
+        assert "flow.linear_solver: direct" in str(err)
+        summary = json.loads((tmp_path / "gamg" / "summary.json").read_text())
+    for rec in summary["solves"]:
+        if rec.get("converged"):
+            assert rec["mass_balance"]["relative_residual"] < 1e-6, rec["mass_balance"]
+    raw["flow"]["linear_solver"] = "direct"
+    summary = run_scene(scene_from_dict(raw), tmp_path / "mumps")
+    assert summary["status"] == "converged"
+    assert max(r["mass_balance"]["relative_residual"] for r in summary["solves"]) < 1e-6
+
+
 def test_fracture_fixed_stress_changes_g_not_its_fixed_point(tmp_path):
     """``coupling.fracture_stabilization`` adds ``β_f (p_f - p_in)`` to the fracture balance of
     ``g``: the injected fracture that opens and closes reaches the same states, apertures and
