@@ -506,3 +506,30 @@ def test_a_failure_message_quotes_the_ends_of_a_long_history():
     text = quoted_history(long)
     assert text.startswith("0.000e+00, 1.000e+00") and text.endswith("1.000e+02")
     assert f"... ({101 - 2 * k} more) ..." in text and len(text.split(", ")) == 2 * k + 1
+
+
+def test_a_residual_at_round_off_has_converged(tmp_path):
+    """The relative tolerance is taken from the largest initial residual, which falls with the
+    load increment: the inclined crack loaded in 1,500 steps stalled at |F| = 1.7e-6 against a
+    tolerance of 1.56e-6 (1.5e-13 of the forces in balance) and failed every cut. A residual
+    at round-off of ``‖J x‖`` has converged; here a tolerance below round-off from the start
+    (``snes_rtol`` 1e-16), which failed by the same stall (DIVERGED_LINE_SEARCH after 94
+    iterations), gives the default run's jumps."""
+    from poromech.io.results import read_table  # noqa: PLC0415
+    from poromech.mechanics.newton import ROUNDOFF_FLOOR  # noqa: PLC0415
+    from poromech.run import run_scene  # noqa: PLC0415
+
+    scene = load_scene(ROOT / "configs" / "inclined_crack_slip.yaml", ["output.xdmf=false"])
+    tight = load_scene(ROOT / "configs" / "inclined_crack_slip.yaml",
+                       ["output.xdmf=false", "solver.petsc={snes_rtol: 1e-16}"])
+    ref = run_scene(scene, tmp_path / "default")
+    summary = run_scene(tight, tmp_path / "tight")
+    rec = summary["solves"][-1]
+    assert rec["reason"] == "CONVERGED_FNORM_ABS" and rec["iterations"] < 10
+    assert rec["residuals"][-1] < 1e-16 * rec["residuals"][0] * 1e4  # far below the default's
+    assert ref["solves"][-1]["reason"] == "CONVERGED_FNORM_RELATIVE"
+    a = read_table(tmp_path / "tight" / "fractures.csv")
+    b = read_table(tmp_path / "default" / "fractures.csv")
+    for key in ("jump_n", "jump_t"):
+        assert np.allclose(a[key], b[key], rtol=0, atol=1e-8 * np.abs(b["jump_t"]).max())
+    assert ROUNDOFF_FLOOR < 1e-10  # below the default relative tolerance
