@@ -570,7 +570,7 @@ class Coupling:
 
     method: Literal["anderson", "ngmres", "qn", "composite", "newtonkrylov", "picard"] = field(
         default="anderson",
-        metadata=doc("anderson | ngmres | qn | composite (a Picard sweep, then Anderson) | "
+        metadata=doc("anderson | ngmres | qn | composite (Anderson on Picard sweeps) | "
                      "newtonkrylov (matrix-free Newton-GMRES) | picard (plain fixed point)"),
     )
     fallback: Literal["none", "anderson", "ngmres", "qn", "composite", "newtonkrylov",
