@@ -292,6 +292,9 @@ REJECTIONS = {
                ["'P'", "intersects itself"]),
     "radius": (lambda: _box(Fracture3D.disc("D", [0.5] * 3, [0, 0, 1], 0.0)), None,
                ["disc 'D'", "radius 0"]),
+    # gmsh corrupted its memory on a disc of 1e-11 m in an 8 m box (exit 134)
+    "tiny_radius": (lambda: _box(Fracture3D.disc("D", [0.5] * 3, [0, 0, 1], 1e-11)), None,
+                    ["disc 'D'", "radius 1e-11 m", "zero area"]),
     "normal": (lambda: _box(Fracture3D.disc("D", [0.5] * 3, [0, 0, 0], 0.2)), None,
                ["disc 'D'", "zero normal"]),
     "outside": (lambda: _box(_poly("P", [[0.2, 0.2, 0.5], [1.3, 0.2, 0.5], [0.2, 0.8, 0.5]])),
