@@ -501,6 +501,16 @@ def test_conforming_surfaces_rejected():
     assert "surface 'S' overlaps fracture 'F' in its plane" in msg
     flat = _poly("S", [[0.1, 0.1, 0.1], [0.5, 0.5, 0.5], [0.9, 0.9, 0.9]])
     assert "surface 'S' is degenerate" in _reject(BoxGeometry(UNIT, (), (flat,)))
+    # a surface that passes within half the fracture size of a fracture without meeting it
+    # (0.1 mm above it: slivers, the fracture's tractions moved by 20 %) was accepted
+    above = rect("S", 2, 0.5001, (0.5, 0.2), (0.8, 0.8))
+    msg = _reject(BoxGeometry(UNIT, (frac_h := rect("F", 2, 0.5, (0.2, 0.2), (0.8, 0.8)),),
+                              (above,)), 0.1)
+    assert "surface 'S' and fracture 'F' are 0.0001 m apart without meeting" in msg
+    check_box_geometry(BoxGeometry(UNIT, (frac_h,), (rect("S", 2, 0.6, (0.5, 0.2),
+                                                          (0.8, 0.8)),)), 0.1)
+    check_box_geometry(BoxGeometry(UNIT, (frac_h,), (rect("S", 0, 0.5, (0.0, 0.0),
+                                                          (1.0, 1.0)),)), 0.1)  # crosses it
 
 
 # ------------------------------------------------------------------------------------------------

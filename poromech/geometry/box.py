@@ -791,14 +791,17 @@ def check_box_geometry(geo: BoxGeometry, fracture_size: float | None = None) -> 
         _check_box_faces(geo, fr, tol, delta, fracture_size)
     for i, j in _boxes_near(geo, max(delta, tol)):
         _check_pair(geo.fractures[i], geo.fractures[j], tol, delta, fracture_size)
-    _check_surfaces(geo, tol)
+    _check_surfaces(geo, tol, delta, fracture_size)
 
 
-def _check_surfaces(geo: BoxGeometry, tol: float) -> None:
+def _check_surfaces(geo: BoxGeometry, tol: float, delta: float = 0.0,
+                    size: float | None = None) -> None:
     """Conforming surfaces: valid polygons in the box (a box face allowed), no fracture's plane.
 
     A surface may cross fractures (their mesh is then split along the line, not the fracture)
-    but not overlap one in its plane: that part would be both a fracture and not.
+    but not overlap one in its plane: that part would be both a fracture and not; nor pass
+    within ``delta`` of one without meeting it (a surface 0.1 mm above a disc meshed at 0.1 m
+    made tetrahedra of quality 2e-4 and moved the disc's tractions by up to 20 %).
     """
     for s in geo.surfaces:
         if s.is_disc:
@@ -806,6 +809,13 @@ def _check_surfaces(geo: BoxGeometry, tol: float) -> None:
         _check_polygon(s, geo.diameter, tol, kind="surface")
         _check_inside_box(geo, s, tol, kind="surface")
         for fr in geo.fractures:
-            if _classify_pair(s, fr, tol)[0] == "coplanar" and _coplanar_overlap(s, fr, tol):
+            kind = _classify_pair(s, fr, tol)[0]
+            if kind == "coplanar" and _coplanar_overlap(s, fr, tol):
                 raise GeometryError(f"surface '{s.name}' overlaps fracture '{fr.name}' in its "
                                     "plane")
+            if delta > 0 and (kind != "crossing" or not len(intersection_segments(s, fr, tol))):
+                gap = fracture_distance(s, fr)
+                if tol < gap < delta:
+                    raise GeometryError(
+                        f"surface '{s.name}' and fracture '{fr.name}' are {_fmt(gap)} m apart "
+                        f"without meeting (less than half the fracture size {_fmt(size)} m)")
