@@ -814,3 +814,41 @@ def test_parameter_names_that_cannot_be_used(name, fragment):
     with pytest.raises(ConfigError, match="scene key 'parameters") as info:
         scene_from_dict(raw)
     assert fragment in str(info.value), info.value
+
+
+def test_two_displacements_of_one_component_where_boundaries_meet_are_reported(tmp_path,
+                                                                                  capsys):
+    """``u_x = 1 mm`` on the bottom and ``u_x = 0`` on the left meet at the corner, where the
+    condition listed later holds (DOLFINx sets them in order): the results changed with the
+    order of the list, silently. Said in one line naming both keys, the boundaries, the values
+    and which holds; equal values on the shared nodes say nothing."""
+    from poromech.cli import main
+
+    cases = (
+        ([{"boundary": "bottom", "displacement": [1.0e-3, 0.0]},
+          {"boundary": "left", "displacement": [0.0, None]}],
+         "set u_x to 0.001 and 0 m where boundaries 'bottom' and 'left' meet: the later one, "
+         "boundary_conditions.1, holds there"),
+        ([{"boundary": "left", "displacement": [0.0, None]},
+          {"boundary": "bottom", "displacement": [1.0e-3, 0.0]}],
+         "set u_x to 0 and 0.001 m where boundaries 'left' and 'bottom' meet"),
+        ([{"boundary": "left", "displacement": [0.0, None]},
+          {"boundary": "bottom", "displacement": ["2.0e-3*x", 0.0]}], None),  # 0 at x = 0
+        ([{"boundary": "left", "displacement": [0.0, None]},
+          {"boundary": "right", "displacement": [1.0e-3, None]},
+          {"boundary": "bottom", "displacement": [None, 0.0]}], None),  # never meet
+    )
+    for conditions, said in cases:
+        raw = mechanics_scene(boundary_conditions=[
+            *conditions, {"boundary": "top", "traction": [0.0, -1.0e6]}])
+        path = tmp_path / "scene.yaml"
+        path.write_text(yaml.safe_dump(raw))
+        assert main(["validate", str(path), "--mesh"]) == 0
+        captured = capsys.readouterr()
+        lines = [x for x in (captured.out + captured.err).splitlines() if "meet:" in x]
+        if said is None:
+            assert not lines, lines
+        else:
+            assert len(lines) == 1 and said in lines[0], lines
+            assert "'boundary_conditions.0.displacement' and " \
+                   "'boundary_conditions.1.displacement'" in lines[0]

@@ -592,8 +592,8 @@ class MechanicsModel:
 
     def _dirichlet(self) -> list[fem.DirichletBC]:
         geo, fm = self.fm.geometry, self.fm
-        bcs = []
-        for bc in self.scene.boundary_conditions:
+        bcs, given = [], []
+        for index, bc in enumerate(self.scene.boundary_conditions):
             if bc.displacement is None:
                 continue
             edges = tuple(i for i, n in enumerate(geo.boundary_names) if n == bc.boundary)
@@ -610,7 +610,55 @@ class MechanicsModel:
                 if expr.depends_on_time:
                     self._updaters.append(upd)
                 bcs.append(fem.dirichletbc(g, dofs, self.V.sub(k)))
+                given.append((index, bc.boundary, k, dofs, upd))
+        self._report_conflicting_displacements(given)
         return bcs
+
+    def _report_conflicting_displacements(self, given) -> None:
+        """Warn where two displacement conditions set one component to different values.
+
+        Where two boundaries meet (an edge of the box, a corner) both conditions hold on the
+        nodes there, and the one listed later wins (DOLFINx sets the conditions in order): a
+        shear box with ``u_x = 1 mm`` on the bottom and ``u_x = 0`` on the left changed its
+        fracture tractions by 20 % when the two were listed the other way round, silently.
+        Compared at ``t = 0`` and at the final time (collective).
+        """
+        times = [0.0] if self.scene.time is None else [0.0, self.scene.time.end]
+        comm = self.fm.msh.comm
+        for a in range(len(given)):
+            for b in range(a + 1, len(given)):
+                (i, name_i, k, dofs_i, upd_i), (j, name_j, kb, dofs_j, upd_j) = given[a], given[b]
+                if k != kb or name_i == name_j:
+                    continue
+                shared, at_i, at_j = np.intersect1d(dofs_i[0], dofs_j[0], return_indices=True)
+                worst, values = 0.0, (0.0, 0.0)
+                for t in times:
+                    upd_i(t)
+                    upd_j(t)
+                    vi = upd_i.target.x.array[dofs_i[1][at_i]]
+                    vj = upd_j.target.x.array[dofs_j[1][at_j]]
+                    # below 1e-9 of the conditions' values: round-off of the node coordinates
+                    scale = comm.allreduce(max(np.abs(upd_i.target.x.array[dofs_i[1]]).max(
+                        initial=0.0), np.abs(upd_j.target.x.array[dofs_j[1]]).max(initial=0.0)),
+                        op=MPI.MAX)
+                    gap = np.abs(vi - vj) - 1e-9 * scale
+                    if gap.size and gap.max() > worst:
+                        m = int(np.argmax(gap))
+                        worst, values = float(gap[m]), (float(vi[m]), float(vj[m]))
+                upd_i(0.0)
+                upd_j(0.0)
+                worst_all = comm.allreduce(worst, op=MPI.MAX)
+                owner = comm.allreduce(comm.rank if 0.0 < worst == worst_all else comm.size,
+                                       op=MPI.MIN)
+                if owner == comm.size:  # the same values on every shared node
+                    continue
+                vi, vj = comm.bcast(values, root=owner)
+                component = "xyz"[k]
+                log.warning(
+                    "scene keys 'boundary_conditions.%d.displacement' and "
+                    "'boundary_conditions.%d.displacement' set u_%s to %.6g and %.6g m where "
+                    "boundaries '%s' and '%s' meet: the later one, boundary_conditions.%d, "
+                    "holds there", i, j, component, vi, vj, name_i, name_j, j)
 
     # -- the initial state ------------------------------------------------------------------
     def _check_initial_stress(self) -> dict:

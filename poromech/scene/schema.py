@@ -333,8 +333,9 @@ class BoundaryCondition:
                                        "box: left, right, front, back, bottom, top)"))
     displacement: tuple[Expr | None, ...] | None = field(
         default=None, metadata=doc("imposed [u_x, u_y] (3D: [u_x, u_y, u_z]); null leaves a "
-                                   "component free; each component at most once per boundary",
-                                   "m")
+                                   "component free; each component at most once per boundary; "
+                                   "where two boundaries meet the one listed later holds "
+                                   "(different values there are reported)", "m")
     )
     traction: tuple[Expr, ...] | None = field(
         default=None, metadata=doc("imposed traction [t_x, t_y] (3D: [t_x, t_y, t_z]); the "
