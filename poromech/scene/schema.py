@@ -109,6 +109,8 @@ class Surface:
     Where data change across a plane that is no fracture: a material interface (a permeability
     that jumps, given with ``where``), or, lying in a box face, the outline of the part of the
     face on which a boundary condition acts (its ``where`` selects faces by their centre).
+    It may cross fractures, not overlap one in its plane nor pass within half the fracture size
+    of one it does not meet.
     """
 
     polygon: tuple[tuple[float, float, float], ...] = field(
