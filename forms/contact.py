@@ -40,6 +40,7 @@ from poromech.forms.fracture import (
     ball_branch,
     ball_projection,
     contact_branch,
+    jump,
     magnitude,
     negative_part,
     normal_jump,
@@ -272,6 +273,14 @@ def displacement_residual(fk: FractureKinematics, p: ContactParameters, u, v, dG
                 terms.append(-p.theta / p.beta_t * ufl.inner(
                     _multiplier_t(lm, p) + _average(a, "traction_t", p),
                     fk.tangential_variation(v)))
+    if p.formulation in ("mixed", "stabilized_mixed", "mean_nitsche") \
+            and fk.initial_traction_mean is not None:
+        # The facewise formulations carry the face mean π⁰T of the traction; the in-situ part
+        # σ⁰n⁺ varies along a face (σ⁰ linear in depth), and its remainder σ⁰n⁺ - π⁰(σ⁰n⁺) is
+        # applied pointwise: the multiplier (or π⁰T) is then a facewise change from σ⁰n⁺, and
+        # u = 0 with T = σ⁰n⁺ is the exact discrete solution of a body at rest. Without the
+        # term, ∫ σ⁰:ε(v) (= ∫ σ⁰n⁺·[[v]] on the fractures) is balanced by ∫ π⁰(σ⁰n⁺)·[[v]] only.
+        terms.append(-ufl.dot(fk.initial_traction() - fk.initial_traction_mean, jump(v)))
     if not terms:
         return None
     return sum(terms[1:], terms[0]) * contact_measure(p, dG)

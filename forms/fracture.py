@@ -148,6 +148,11 @@ class FractureKinematics:
             per planar fracture); None in 2D, where it is ``τ = (n_y, -n_x)``.
         initial_stress: The in-situ (total) stress ``σ⁰`` (Pa), a tensor on the cells, or None:
             the traction is then ``(σ⁰ + σ(u) - b p_m I) n⁺ + p_f n⁺``.
+        initial_traction_mean: The face means ``π⁰(σ⁰n⁺)`` (Pa, a vector in global
+            coordinates, facewise constant) of :meth:`initial_traction`, or None (``σ⁰`` absent
+            or constant on every face). The facewise formulations take the face means of the
+            traction only, and load the fractures with ``σ⁰n⁺ - π⁰(σ⁰n⁺)`` pointwise (see
+            :func:`poromech.forms.contact.displacement_residual`).
     """
 
     n: ufl.core.expr.Expr
@@ -160,6 +165,7 @@ class FractureKinematics:
     slip_reference: ufl.core.expr.Expr | None = None
     tangents: tuple[ufl.core.expr.Expr, ...] | None = None
     initial_stress: ufl.core.expr.Expr | None = None
+    initial_traction_mean: ufl.core.expr.Expr | None = None
 
     @property
     def frame(self) -> tuple:
@@ -176,11 +182,17 @@ class FractureKinematics:
         """``f`` on the side that defines the traction (``+``, or the mean of both)."""
         return f("+") if self.side == "plus" else 0.5 * (f("+") + f("-"))
 
+    def initial_traction(self):
+        """``σ⁰n⁺`` on the side that defines the traction (Pa), or None without ``σ⁰``."""
+        if self.initial_stress is None:
+            return None
+        return ufl.dot(self._side(self.initial_stress), self.n)
+
     def traction(self, u):
         """Contact traction ``T(u) = (σ⁰ + σ(u) - b p_m I) n⁺ + p_f n⁺`` (Pa), eq. (1) and §3."""
         t = self.stress_variation(u)
         if self.initial_stress is not None:
-            t = t + ufl.dot(self._side(self.initial_stress), self.n)
+            t = t + self.initial_traction()
         if self.matrix_pressure is not None:
             pm = self.matrix_pressure
             pm_side = pm("+") if self.side == "plus" else 0.5 * (pm("+") + pm("-"))

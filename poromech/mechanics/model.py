@@ -8,7 +8,7 @@ fracture submesh when there are no fractures.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import dolfinx_solver  # noqa: F401
 
@@ -532,12 +532,39 @@ class MechanicsModel:
                     self._updaters.append(upd)
                 pf = pf_fun("+")
         n = ufl.FacetNormal(self.fm.msh)("+")
-        return FractureKinematics(
+        fk = FractureKinematics(
             n=n, young=self.young, poisson=self.poisson, side=self.scene.contact.traction_side,
             fracture_pressure=pf, slip_reference=self.u_prev, matrix_pressure=self.p_m,
             biot=fem.Constant(self.fm.msh, self.biot), initial_stress=self.initial_stress,
             tangents=self._tangent_frame(),
         )
+        mean = self._initial_traction_mean(fk)
+        return fk if mean is None else replace(fk, initial_traction_mean=mean)
+
+    def _initial_traction_mean(self, fk: FractureKinematics):
+        """``π⁰(σ⁰n⁺)`` (DG0 on the fracture faces, global components), or None (collective).
+
+        Built for the facewise formulations with a varying ``σ⁰`` only. The face means use
+        the contact quadrature, which integrates ``σ⁰`` (DG of the displacement degree)
+        exactly.
+        """
+        c = self.params
+        if (self.initial_stress is None or isinstance(self.initial_stress, fem.Constant)
+                or not self.has_fractures
+                or c.formulation not in ("mixed", "stabilized_mixed", "mean_nitsche")):
+            return None
+        d = self.fm.msh.geometry.dim
+        mean = fem.Function(self._dg0(d), name="initial_traction_mean")
+        q = ufl.TestFunction(mean.function_space)("+")
+        area = ufl.FacetArea(self.fm.msh)("+")
+        dG = cforms.contact_measure(c, fracture_measure(self.fm)(FRACTURE_TAG))
+        t0 = fk.initial_traction()
+        form = fem.form(sum(t0[i] * q[i] for i in range(d)) / area * dG,
+                        entity_maps=self.entity_maps or None)
+        fem.assemble_vector(mean.x.array, form)
+        mean.x.scatter_reverse(dolfinx.la.InsertMode.add)
+        mean.x.scatter_forward()
+        return mean("+")
 
     def _tangent_frame(self) -> tuple | None:
         """The tangents ``(τ_1, τ_2)`` of the fractures in 3D, or None in 2D.
