@@ -205,3 +205,47 @@ def test_validate_with_mesh_runs_the_checks_on_the_mesh(tmp_path, capsys):
     assert main(["validate", str(path), "--mesh"]) == 0
     assert "meshed: " in capsys.readouterr().out
     assert not (tmp_path / "results").exists()  # nothing written
+
+
+@pytest.mark.parametrize(("formulation", "degree"), [("stabilized_mixed", 1),
+                                                     ("mean_nitsche", 1), ("mixed", 2)])
+def test_an_inclined_3d_fault_at_depth_stays_at_rest(formulation, degree):
+    """A disc dipping 37° at 2 km depth under a lithostatic σ⁰ with unequal horizontal stresses:
+    the facewise formulations carry the face mean of a traction σ⁰n that varies along each face,
+    and moved the body by 1.5e-6 m (1.3e-4 of the weight's scale) with 8.7e-8 m of slip at rest
+    before the remainder was applied pointwise; now u = 0 to round-off and the face tractions are
+    σ⁰n at the centroids (σ⁰ is linear)."""
+    rho = 2400.0
+    raw = {
+        "name": "rest3d", "parameters": {"rho": rho, "g": G},
+        "geometry": {"domain": {"box": [0.0, 0.0, -2100.0, 100.0, 100.0, -2000.0]},
+                     "fractures": [{"name": "f", "disc": {"center": [50.0, 50.0, -2050.0],
+                                                          "normal": [0.6, 0.0, 0.8],
+                                                          "radius": 30.0}}]},
+        "mesh": {"size": 25.0, "fracture_size": 10.0}, "degree": degree,
+        "material": {"young": 2.0e10, "poisson": 0.25, "density": "rho",
+                     "initial_stress": ["0.7*rho*g*z", "0.8*rho*g*z", "rho*g*z", 0.0, 0.0, 0.0]},
+        "gravity": [0.0, 0.0, -G],
+        "contact": {"formulation": formulation, "friction_coefficient": 0.6},
+        "boundary_conditions": [
+            {"boundary": "left", "displacement": [0.0, None, None]},
+            {"boundary": "right", "displacement": [0.0, None, None]},
+            {"boundary": "front", "displacement": [None, 0.0, None]},
+            {"boundary": "back", "displacement": [None, 0.0, None]},
+            {"boundary": "bottom", "displacement": [None, None, 0.0]},
+            {"boundary": "top", "traction": [0.0, 0.0, "rho*g*z"]}],
+    }
+    summary, u, values, faces = solve(raw)
+    assert summary["solves"][0]["converged"]
+    sag = rho * G * 100.0**2 / 2.0e10
+    assert comm.allreduce(float(np.abs(u).max(initial=0.0)), op=MPI.MAX) < 1e-12 * sag
+    assert np.abs(values["jump_t"]).max(initial=0.0) < 1e-12 * sag
+    z = faces.midpoint[:, 2]
+    sigma = np.zeros((len(z), 3, 3))
+    for i, k in enumerate((0.7, 0.8, 1.0)):
+        sigma[:, i, i] = k * rho * G * z
+    n = faces.normal
+    sn = np.einsum("fij,fj->fi", sigma, n)
+    scale = rho * G * 2100.0
+    assert np.abs(values["traction_n"] - np.einsum("fi,fi->f", sn, n)).max(initial=0.0) \
+        < 1e-9 * scale
