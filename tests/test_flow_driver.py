@@ -96,7 +96,7 @@ def test_transient_with_storage(tmp_path):
 
 
 def test_solver_failure_raises(tmp_path):
-    raw = flow_scene(petsc={"ksp_max_it": 2, "ksp_rtol": 1e-14})
+    raw = flow_scene(linear_solver="iterative", petsc={"ksp_max_it": 2, "ksp_rtol": 1e-14})
     with Run(scene_from_dict(raw), tmp_path, comm) as failed:
         with pytest.raises(SolverError) as err:
             failed.execute()
@@ -319,3 +319,22 @@ def test_an_initial_pressure_without_storage_is_said_to_set_only_the_initial_sta
     _, rows = read_csv(tmp_path / "stored" / "probe_bar.csv")
     stored = np.array([float(r[4]) for r in rows if r[0] == "10"])
     assert not np.allclose(stored, pressures[0]["10"], rtol=1e-3, atol=0.0)
+
+
+def test_auto_hands_a_failed_krylov_solve_to_mumps(tmp_path, caplog):
+    """``flow.linear_solver: auto`` (the default): CG + GAMG, and after a failed Krylov solve
+    (here limited to one iteration) MUMPS LU for the rest of the run, said in one warning and
+    in the summary; the fluxes are MUMPS'. ``iterative`` keeps the failure."""
+    limited = {"ksp_max_it": 1}
+    caplog.clear()
+    auto = run(flow_scene(petsc=limited), tmp_path / "auto")["flow"]
+    assert auto["solver"]["fallback"] == "direct" and auto["solver"]["pc_type"] == "lu"
+    said = [r.getMessage() for r in caplog.records if "flow.linear_solver auto" in r.getMessage()]
+    assert len(said) == 1 and "switching to MUMPS LU for the rest of the run" in said[0]
+    assert "DIVERGED_MAX_IT after 1 iterations" in said[0]
+    lu = run(flow_scene(linear_solver="direct"), tmp_path / "lu")["flow"]
+    assert auto["conservation"]["boundary_fluxes"]["right"]["matrix"] == pytest.approx(
+        lu["conservation"]["boundary_fluxes"]["right"]["matrix"], rel=1e-10)
+    assert "fallback" not in run(flow_scene(), tmp_path / "plain")["flow"]["solver"]
+    with pytest.raises(SolverError, match="DIVERGED_MAX_IT"):
+        run(flow_scene(linear_solver="iterative", petsc=limited), tmp_path / "iterative")

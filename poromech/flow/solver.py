@@ -9,6 +9,7 @@ database only while the KSP reads them (:class:`~poromech.petsc_options.Prefixed
 
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import asdict, dataclass, field
 
@@ -20,6 +21,8 @@ from petsc4py import PETSc
 
 from poromech.errors import SolverError
 from poromech.petsc_options import PrefixedOptions
+
+log = logging.getLogger("poromech")
 
 __all__ = [
     "DIRECT_OPTIONS",
@@ -72,6 +75,13 @@ DIRECT_OPTIONS: dict[str, object] = {
     "pc_type": "lu",
     "pc_factor_mat_solver_type": "mumps",
 }
+
+#: ``auto`` (the default of ``flow.linear_solver``): the iterative solver, which a failed Krylov
+#: solve hands to MUMPS LU for the rest of the run where the factorization fits in this many
+#: times its estimate (:func:`direct_bytes`) of the memory available. An injection into a
+#: fracture of aperture 1e-9 m (conductances over 30 decades) failed with CG + GAMG in every
+#: cut of its first step; MUMPS holds its mass balance to 1e-8.
+FALLBACK_MEMORY_MARGIN = 1.5
 
 #: A lagged preconditioner is rebuilt after a solve that took more than ``LAG_GROWTH`` times the
 #: iterations of its first solve plus ``LAG_SLACK`` (:attr:`LinearSolver.lagged`): an AMG set-up
@@ -189,9 +199,16 @@ class LinearRecord:
         return out
 
 
+def direct_bytes(unknowns: float, dim: int) -> float:
+    """Estimated memory of a MUMPS factorization of the flow system over all ranks."""
+    from poromech.scene.resources import _direct_bytes, direct_solve_bytes_3d  # noqa: PLC0415
+
+    return direct_solve_bytes_3d(unknowns) if dim == 3 else _direct_bytes(unknowns)
+
+
 def merged_options(kind: str, options: dict | None, dim: int = 2) -> dict[str, object]:
-    """The defaults of ``kind`` (``iterative``, ``direct``) in ``dim``, ``options`` merged over."""
-    if kind == "iterative":
+    """The defaults of ``kind`` (``iterative``, ``auto``, ``direct``), ``options`` merged over."""
+    if kind in ("iterative", "auto"):
         base = dict(ITERATIVE_OPTIONS_3D if dim == 3 else ITERATIVE_OPTIONS)
     else:
         base = dict(DIRECT_OPTIONS)
@@ -209,7 +226,9 @@ class LinearSolver:
     Args:
         A: The system matrix (its values may change between solves).
         prefix: Options prefix, ending in ``_`` (``flow_``).
-        kind: ``iterative`` (CG + GAMG) or ``direct`` (LU with MUMPS) defaults.
+        kind: ``iterative`` (CG + GAMG) or ``direct`` (LU with MUMPS) defaults; ``auto``: the
+            iterative ones, and MUMPS for the rest of the run after a failed Krylov solve
+            where it fits (:data:`FALLBACK_MEMORY_MARGIN`; :attr:`fallback`).
         options: Options merged over the defaults, without the prefix.
         dim: Dimension of the mesh (the iterative defaults differ in 3D).
 
@@ -230,6 +249,10 @@ class LinearSolver:
             raise ValueError(f"options prefix {prefix!r} must end with '_'")
         self.A = A
         self.prefix = prefix
+        self.dim = dim
+        self.auto = kind == "auto"
+        self.fallback: str | None = None  # "direct" once a failed Krylov solve switched (auto)
+        self._x0: PETSc.Vec | None = None  # the initial guess of a solve (auto)
         self.ksp = PETSc.KSP().create(A.getComm())
         self.ksp.setOptionsPrefix(prefix)
         self.ksp.setOperators(A)
@@ -238,7 +261,7 @@ class LinearSolver:
             self.ksp.setFromOptions()
         given_norm = (options or {}).get("ksp_norm_type") is not None \
             or PETSc.Options().hasName(f"{prefix}ksp_norm_type")
-        if kind == "iterative" and self.ksp.getType() not in NATURAL_NORM_TYPES \
+        if kind != "direct" and self.ksp.getType() not in NATURAL_NORM_TYPES \
                 and not given_norm:
             # the default natural norm is CG's: another Krylov method (-flow_ksp_type gmres)
             # measures its own default norm instead of stopping at PETSc's set-up error
@@ -314,6 +337,10 @@ class LinearSolver:
                     self._guess = x.duplicate()
                 x.copy(self._guess)
             r0 = self._true_residual(b, x)
+            if self.auto and self.fallback is None:
+                if self._x0 is None:
+                    self._x0 = x.duplicate()
+                x.copy(self._x0)
             self.test.set_scales(b, x)
             self.ksp.solve(b, x)
             its = self.ksp.getIterationNumber()
@@ -326,6 +353,13 @@ class LinearSolver:
                 self.ksp.solve(b, x)
                 its += self.ksp.getIterationNumber()
                 held = self._true_residual_held(b, x, r0)
+            if (self.ksp.getConvergedReason() <= 0 or not held) and self.auto \
+                    and self.fallback is None and self._switch_to_direct(its, r0):
+                self._x0.copy(x)
+                setup += self._set_up()
+                lagged = False
+                self.ksp.solve(b, x)
+                held = True
         self._stale = lagged
         if self._lagging:
             if not lagged and self._fresh_iterations < 0:
@@ -359,6 +393,40 @@ class LinearSolver:
                 reason=rec.reason, history=rec.history, record=rec.as_dict(),
             )
         return rec
+
+    def _switch_to_direct(self, its: int, r0: float) -> bool:
+        """Hand the solves to MUMPS LU for the rest of the run, where it fits (collective).
+
+        Said in one warning either way; True when switched.
+        """
+        from poromech.scene.resources import available_memory  # noqa: PLC0415
+
+        reason = _REASONS.get(self.ksp.getConvergedReason(), "")
+        if self.ksp.getConvergedReason() > 0:
+            reason = (f"DIVERGED_TRUE_RESIDUAL, the true residual |b - Ax| went only from "
+                      f"{r0:.3e} to {self._r_true:.3e}")
+        n = self.A.getSize()[0]
+        need = direct_bytes(n, self.dim)
+        comm = self.A.getComm().tompi4py()
+        available, limit = available_memory(comm)
+        fits = FALLBACK_MEMORY_MARGIN * need <= available
+        log.warning("the flow's %s/%s solve failed (%s after %d iterations); flow.linear_solver "
+                    "auto: %s (about %.2g GB for %d unknowns, %.3g GB available, %s)",
+                    self.ksp.getType(), self.ksp.getPC().getType(), reason, its,
+                    "switching to MUMPS LU for the rest of the run" if fits
+                    else "MUMPS LU does not fit and is not tried", need / 1e9, n,
+                    available / 1e9, limit)
+        if not fits:
+            return False
+        self.fallback = "direct"
+        self._options = PrefixedOptions(self.prefix, dict(DIRECT_OPTIONS))
+        self.ksp.setType(PETSc.KSP.Type.PREONLY)
+        self.ksp.setInitialGuessNonzero(False)
+        pc = self.ksp.getPC()
+        pc.setType(PETSc.PC.Type.LU)
+        pc.setFactorSolverType("mumps")
+        self.ksp.setOperators(self.A)
+        return True
 
     def _true_residual(self, b: PETSc.Vec, x: PETSc.Vec) -> float:
         """``‖b - A x‖`` (collective; 0 without a Krylov method, which is not checked)."""
@@ -403,13 +471,16 @@ class LinearSolver:
     def describe(self) -> dict[str, object]:
         """KSP and PC types and tolerances actually used."""
         rtol, atol, _, max_it = self.ksp.getTolerances()
-        return {"prefix": self.prefix, "ksp_type": self.ksp.getType(),
-                "pc_type": self.ksp.getPC().getType(), "rtol": rtol, "atol": atol,
-                "max_it": max_it}
+        out = {"prefix": self.prefix, "ksp_type": self.ksp.getType(),
+               "pc_type": self.ksp.getPC().getType(), "rtol": rtol, "atol": atol,
+               "max_it": max_it}
+        if self.fallback is not None:
+            out["fallback"] = self.fallback
+        return out
 
     def destroy(self) -> None:
         """Free the KSP and the lagged preconditioner's matrix."""
         self.ksp.destroy()
-        for obj in (self._P, self._guess, self._work):
+        for obj in (self._P, self._guess, self._work, self._x0):
             if obj is not None:
                 obj.destroy()

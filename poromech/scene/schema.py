@@ -528,9 +528,11 @@ class Flow:
     stabilization: float | None = field(
         default=None, metadata=doc("HFV stabilization β (default √d)", "", gt=0)
     )
-    linear_solver: Literal["iterative", "direct"] = field(
-        default="iterative",
-        metadata=doc("defaults of the flow_ solver: iterative (CG + GAMG) or direct (MUMPS)"),
+    linear_solver: Literal["auto", "iterative", "direct"] = field(
+        default="auto",
+        metadata=doc("defaults of the flow_ solver: iterative (CG + GAMG), direct (MUMPS), or "
+                     "auto: iterative, and MUMPS for the rest of the run after a failed "
+                     "Krylov solve where it fits in memory"),
     )
     petsc: dict[str, str | float | int | bool | None] = field(
         default_factory=dict,
