@@ -338,3 +338,41 @@ def test_auto_hands_a_failed_krylov_solve_to_mumps(tmp_path, caplog):
     assert "fallback" not in run(flow_scene(), tmp_path / "plain")["flow"]["solver"]
     with pytest.raises(SolverError, match="DIVERGED_MAX_IT"):
         run(flow_scene(linear_solver="iterative", petsc=limited), tmp_path / "iterative")
+
+
+def test_a_restart_keeps_the_switch_to_mumps(tmp_path, caplog):
+    """A run that ``auto`` switched to MUMPS, stopped after its first step and continued, goes
+    on with MUMPS from the checkpoint (said so) and writes the uninterrupted run's pressures."""
+    import signal
+
+    from poromech import stepping
+
+    raw = flow_scene(petsc={"ksp_max_it": 1}, biot_modulus=1.0e9)
+    raw["time"] = {"final": 20.0, "steps": 2}
+    scene = scene_from_dict(raw)
+    full = run_scene(scene, tmp_path / "full", comm)
+    assert full["flow"]["solver"]["fallback"] == "direct"
+
+    def terminate_after_first_step(physics):
+        accept = physics.accept
+
+        def accept_and_signal(t):
+            accept(t)
+            signal.raise_signal(signal.SIGTERM)
+
+        physics.accept = accept_and_signal
+
+    part = tmp_path / "part"
+    with Run(scene, part, comm, prepare=terminate_after_first_step) as stopped, \
+            pytest.raises(stepping.Interrupted):
+        stopped.execute()
+    caplog.clear()
+    resumed = run_scene(scene, part, comm, restart=True)
+    assert resumed["flow"]["solver"]["fallback"] == "direct"
+    assert any("the run continued here had switched the flow to MUMPS LU" in r.getMessage()
+               for r in caplog.records)
+    _, a = read_csv(tmp_path / "full" / "probe_bar.csv")
+    _, b = read_csv(part / "probe_bar.csv")
+    pa = np.array([float(r[4]) for r in a if r[0] == "20"])
+    pb = np.array([float(r[4]) for r in b if r[0] == "20"])
+    assert len(pa) == 81 and np.allclose(pa, pb, rtol=1e-12, atol=0.0)

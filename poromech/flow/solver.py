@@ -354,7 +354,7 @@ class LinearSolver:
                 its += self.ksp.getIterationNumber()
                 held = self._true_residual_held(b, x, r0)
             if (self.ksp.getConvergedReason() <= 0 or not held) and self.auto \
-                    and self.fallback is None and self._switch_to_direct(its, r0):
+                    and self.fallback is None and self.switch_to_direct(its, r0):
                 self._x0.copy(x)
                 setup += self._set_up()
                 lagged = False
@@ -394,10 +394,11 @@ class LinearSolver:
             )
         return rec
 
-    def _switch_to_direct(self, its: int, r0: float) -> bool:
+    def switch_to_direct(self, its: int = 0, r0: float = 0.0, restart: bool = False) -> bool:
         """Hand the solves to MUMPS LU for the rest of the run, where it fits (collective).
 
-        Said in one warning either way; True when switched.
+        Said in one warning either way; True when switched. ``restart``: the switch of the run
+        being continued (its checkpoint), ``its`` and ``r0`` unused.
         """
         from poromech.scene.resources import available_memory  # noqa: PLC0415
 
@@ -405,14 +406,16 @@ class LinearSolver:
         if self.ksp.getConvergedReason() > 0:
             reason = (f"DIVERGED_TRUE_RESIDUAL, the true residual |b - Ax| went only from "
                       f"{r0:.3e} to {self._r_true:.3e}")
+        why = ("the run continued here had switched the flow to MUMPS LU after a failed solve"
+               if restart else f"the flow's {self.ksp.getType()}/{self.ksp.getPC().getType()} "
+               f"solve failed ({reason} after {its} iterations)")
         n = self.A.getSize()[0]
         need = direct_bytes(n, self.dim)
         comm = self.A.getComm().tompi4py()
         available, limit = available_memory(comm)
         fits = FALLBACK_MEMORY_MARGIN * need <= available
-        log.warning("the flow's %s/%s solve failed (%s after %d iterations); flow.linear_solver "
-                    "auto: %s (about %.2g GB for %d unknowns, %.3g GB available, %s)",
-                    self.ksp.getType(), self.ksp.getPC().getType(), reason, its,
+        log.warning("%s; flow.linear_solver auto: %s (about %.2g GB for %d unknowns, %.3g GB "
+                    "available, %s)", why,
                     "switching to MUMPS LU for the rest of the run" if fits
                     else "MUMPS LU does not fit and is not tried", need / 1e9, n,
                     available / 1e9, limit)

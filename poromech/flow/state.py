@@ -12,6 +12,7 @@ import numpy as np
 import numpy.typing as npt
 
 from poromech.flow.problem import DarcyProblem
+from poromech.io.checkpoint import scalar_row
 from poromech.mesh.entities import input_cells
 from poromech.physics import Keyed
 
@@ -60,6 +61,8 @@ class FlowState:
             out["porosity"] = (cells, self.porosity)
         if self.aperture is not None:
             out["aperture"] = (faces, self.aperture)
+        if pb.solver.fallback is not None:  # the run continued solves with MUMPS from here
+            out["flow_linear_direct"] = scalar_row(pb.fm.msh.comm, 1.0)
         return out
 
     def restore(self, arrays: dict[str, npt.NDArray]) -> None:
@@ -79,4 +82,6 @@ class FlowState:
             self.porosity = arrays["porosity"][cells]
         if "aperture" in arrays:
             self.aperture = arrays["aperture"][fm.fractures.index]
+        if "flow_linear_direct" in arrays and pb.solver.fallback is None:
+            pb.solver.switch_to_direct(restart=True)
         self._pressure = pb.p.copy()
