@@ -21,6 +21,7 @@ from petsc4py import PETSc
 
 from poromech.errors import SolverError
 from poromech.petsc_options import PrefixedOptions
+from poromech.scene.resources import available_memory, direct_solve_bytes
 
 log = logging.getLogger("poromech")
 
@@ -77,10 +78,10 @@ DIRECT_OPTIONS: dict[str, object] = {
 }
 
 #: ``auto`` (the default of ``flow.linear_solver``): the iterative solver, which a failed Krylov
-#: solve hands to MUMPS LU for the rest of the run where the factorization fits in this many
-#: times its estimate (:func:`direct_bytes`) of the memory available. An injection into a
-#: fracture of aperture 1e-9 m (conductances over 30 decades) failed with CG + GAMG in every
-#: cut of its first step; MUMPS holds its mass balance to 1e-8.
+#: solve (its reason, or :data:`TRUE_RESIDUAL_DROP`) hands to MUMPS LU for the rest of the run
+#: where the factorization fits in this many times its estimate
+#: (:func:`~poromech.scene.resources.direct_solve_bytes`) of the memory available, as the
+#: mechanics' ``solver.linear_solver: auto`` does; ``iterative`` keeps the failure.
 FALLBACK_MEMORY_MARGIN = 1.5
 
 #: A lagged preconditioner is rebuilt after a solve that took more than ``LAG_GROWTH`` times the
@@ -197,13 +198,6 @@ class LinearRecord:
         if not history:
             out.pop("history")
         return out
-
-
-def direct_bytes(unknowns: float, dim: int) -> float:
-    """Estimated memory of a MUMPS factorization of the flow system over all ranks."""
-    from poromech.scene.resources import _direct_bytes, direct_solve_bytes_3d  # noqa: PLC0415
-
-    return direct_solve_bytes_3d(unknowns) if dim == 3 else _direct_bytes(unknowns)
 
 
 def merged_options(kind: str, options: dict | None, dim: int = 2) -> dict[str, object]:
@@ -400,8 +394,6 @@ class LinearSolver:
         Said in one warning either way; True when switched. ``restart``: the switch of the run
         being continued (its checkpoint), ``its`` and ``r0`` unused.
         """
-        from poromech.scene.resources import available_memory  # noqa: PLC0415
-
         reason = _REASONS.get(self.ksp.getConvergedReason(), "")
         if self.ksp.getConvergedReason() > 0:
             reason = (f"DIVERGED_TRUE_RESIDUAL, the true residual |b - Ax| went only from "
@@ -410,7 +402,7 @@ class LinearSolver:
                if restart else f"the flow's {self.ksp.getType()}/{self.ksp.getPC().getType()} "
                f"solve failed ({reason} after {its} iterations)")
         n = self.A.getSize()[0]
-        need = direct_bytes(n, self.dim)
+        need = direct_solve_bytes(n, self.dim)
         comm = self.A.getComm().tompi4py()
         available, limit = available_memory(comm)
         fits = FALLBACK_MEMORY_MARGIN * need <= available

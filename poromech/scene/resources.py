@@ -58,6 +58,7 @@ __all__ = [
     "RunEstimate",
     "available_memory",
     "check_resources",
+    "direct_solve_bytes",
     "direct_solve_bytes_3d",
     "estimate_cells",
     "estimate_run",
@@ -326,6 +327,11 @@ def estimate_run(scene, geo: PlaneGeometry, ranks: int = 1) -> RunEstimate:
         direct = scene.flow.linear_solver == "direct"
         memory += _direct_bytes(flow) if direct else ITERATIVE_BYTES * flow
     return RunEstimate(cells, unknowns, memory)
+
+
+def direct_solve_bytes(unknowns: float, dim: int) -> float:
+    """Memory of a MUMPS solve over all ranks: ``n log₂ n`` in 2D, ``n^{4/3}`` in 3D."""
+    return direct_solve_bytes_3d(unknowns) if dim == 3 else _direct_bytes(unknowns)
 
 
 def direct_solve_bytes_3d(unknowns: float) -> float:
