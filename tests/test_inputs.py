@@ -852,3 +852,13 @@ def test_two_displacements_of_one_component_where_boundaries_meet_are_reported(t
             assert len(lines) == 1 and said in lines[0], lines
             assert "'boundary_conditions.0.displacement' and " \
                    "'boundary_conditions.1.displacement'" in lines[0]
+    # equal at t = 0, different at the final time
+    raw = mechanics_scene(boundary_conditions=[
+        {"boundary": "bottom", "displacement": ["1.0e-3*t", 0.0]},
+        {"boundary": "left", "displacement": [0.0, None]},
+        {"boundary": "top", "traction": [0.0, -1.0e6]}], time={"final": 2.0, "steps": 2})
+    path.write_text(yaml.safe_dump(raw))
+    assert main(["validate", str(path), "--mesh"]) == 0
+    captured = capsys.readouterr()
+    assert "set u_x to 0.002 and 0 m where boundaries 'bottom' and 'left' meet" \
+        in captured.out + captured.err

@@ -51,7 +51,7 @@ Array = npt.NDArray[np.float64]
 #: PETSc's ``composite`` of a Picard sweep and Anderson, which runs each for one iteration per
 #: outer iteration and so restarts Anderson's history every time: two plain sweeps per
 #: iteration, 194 ``g`` on the six-fracture scene (now 146, Anderson alone 99), and on an
-#: injection into a kinked fracture 477 ``g`` per step until the fallback took over (now 15-19,
+#: injection into a kinked fracture 477 ``g`` per step until the fallback took over (now 15-21,
 #: Anderson 7-10).
 #:
 #: ``newtonkrylov`` differences ``g`` with the Dennis-Schnabel step (``mat_mffd_type ds``),

@@ -648,44 +648,59 @@ class MechanicsModel:
         nodes there, and the one listed later wins (DOLFINx sets the conditions in order): a
         shear box with ``u_x = 1 mm`` on the bottom and ``u_x = 0`` on the left changed its
         fracture tractions by 20 % when the two were listed the other way round, silently.
-        Compared at ``t = 0`` and at the final time (collective).
+        Compared at ``t = 0`` and, for conditions that vary in time, at the final time; only
+        pairs that share nodes are evaluated (collective).
         """
-        times = [0.0] if self.scene.time is None else [0.0, self.scene.time.end]
         comm = self.fm.msh.comm
+        pairs = []
         for a in range(len(given)):
             for b in range(a + 1, len(given)):
-                (i, name_i, k, dofs_i, upd_i), (j, name_j, kb, dofs_j, upd_j) = given[a], given[b]
-                if k != kb or name_i == name_j:
+                (_, name_a, k, dofs_a, _), (_, name_b, kb, dofs_b, _) = given[a], given[b]
+                if k != kb or name_a == name_b:
                     continue
-                shared, at_i, at_j = np.intersect1d(dofs_i[0], dofs_j[0], return_indices=True)
-                worst, values = 0.0, (0.0, 0.0)
-                for t in times:
-                    upd_i(t)
-                    upd_j(t)
-                    vi = upd_i.target.x.array[dofs_i[1][at_i]]
-                    vj = upd_j.target.x.array[dofs_j[1][at_j]]
-                    # below 1e-9 of the conditions' values: round-off of the node coordinates
-                    scale = comm.allreduce(max(np.abs(upd_i.target.x.array[dofs_i[1]]).max(
-                        initial=0.0), np.abs(upd_j.target.x.array[dofs_j[1]]).max(initial=0.0)),
-                        op=MPI.MAX)
-                    gap = np.abs(vi - vj) - 1e-9 * scale
-                    if gap.size and gap.max() > worst:
-                        m = int(np.argmax(gap))
-                        worst, values = float(gap[m]), (float(vi[m]), float(vj[m]))
-                upd_i(0.0)
-                upd_j(0.0)
-                worst_all = comm.allreduce(worst, op=MPI.MAX)
-                owner = comm.allreduce(comm.rank if 0.0 < worst == worst_all else comm.size,
-                                       op=MPI.MIN)
-                if owner == comm.size:  # the same values on every shared node
-                    continue
-                vi, vj = comm.bcast(values, root=owner)
-                component = "xyz"[k]
-                log.warning(
-                    "scene keys 'boundary_conditions.%d.displacement' and "
-                    "'boundary_conditions.%d.displacement' set u_%s to %.6g and %.6g m where "
-                    "boundaries '%s' and '%s' meet: the later one, boundary_conditions.%d, "
-                    "holds there", i, j, component, vi, vj, name_i, name_j, j)
+                shared = np.intersect1d(dofs_a[0], dofs_b[0], return_indices=True)
+                pairs.append((a, b, shared[1], shared[2]))
+        counts = comm.allreduce(np.array([len(p[2]) for p in pairs], dtype=np.int64))
+        pairs = [p for p, n in zip(pairs, counts, strict=True) if n > 0]
+        if not pairs:
+            return
+        moving = any(upd.exprs[0].depends_on_time for *_, upd in given)
+        times = [0.0, self.scene.time.end] if moving and self.scene.time is not None else [0.0]
+        worst = {(a, b): (0.0, 0.0, 0.0) for a, b, *_ in pairs}
+        involved = sorted({a for a, *_ in pairs} | {b for _, b, *_ in pairs})
+        for t in times:
+            values = {}
+            for c in involved:
+                upd = given[c][4]
+                if t > 0.0 and upd.exprs[0].depends_on_time:
+                    upd(t)
+                values[c] = upd.target.x.array[given[c][3][1]].copy()
+                if t > 0.0 and upd.exprs[0].depends_on_time:
+                    upd(0.0)
+            # below 1e-9 of the conditions' values: round-off of the node coordinates
+            local = np.array([np.abs(values[c]).max(initial=0.0) for c in involved])
+            largest = np.empty_like(local)
+            comm.Allreduce(local, largest, op=MPI.MAX)
+            scale = dict(zip(involved, largest, strict=True))
+            for a, b, at_a, at_b in pairs:
+                va, vb = values[a][at_a], values[b][at_b]
+                gap = np.abs(va - vb) - 1e-9 * max(scale[a], scale[b])
+                if gap.size and gap.max() > worst[a, b][0]:
+                    m = int(np.argmax(gap))
+                    worst[a, b] = (float(gap[m]), float(va[m]), float(vb[m]))
+        for a, b, *_ in pairs:
+            gap, va, vb = worst[a, b]
+            top = comm.allreduce(gap, op=MPI.MAX)
+            owner = comm.allreduce(comm.rank if 0.0 < gap == top else comm.size, op=MPI.MIN)
+            if owner == comm.size:  # the same values on every shared node
+                continue
+            va, vb = comm.bcast((va, vb), root=owner)
+            (i, name_i, k, *_), (j, name_j, *_) = given[a], given[b]
+            log.warning(
+                "scene keys 'boundary_conditions.%d.displacement' and "
+                "'boundary_conditions.%d.displacement' set u_%s to %.6g and %.6g m where "
+                "boundaries '%s' and '%s' meet: the later one, boundary_conditions.%d, "
+                "holds there", i, j, "xyz"[k], va, vb, name_i, name_j, j)
 
     # -- the initial state ------------------------------------------------------------------
     def _check_initial_stress(self) -> dict:
