@@ -510,11 +510,11 @@ def test_a_failure_message_quotes_the_ends_of_a_long_history():
 
 def test_a_residual_at_round_off_has_converged(tmp_path):
     """The relative tolerance is taken from the largest initial residual, which falls with the
-    load increment: the inclined crack loaded in 1,500 steps stalled at |F| = 1.7e-6 against a
-    tolerance of 1.56e-6 (1.5e-13 of the forces in balance) and failed every cut. A residual
-    at round-off of ``‖J x‖`` has converged; here a tolerance below round-off from the start
-    (``snes_rtol`` 1e-16), which failed by the same stall (DIVERGED_LINE_SEARCH after 94
-    iterations), gives the default run's jumps."""
+    load increment: an inclined crack (a user's scene) loaded in 1,500 steps stalled at
+    |F| = 1.7e-6 against a tolerance of 1.56e-6 (1.5e-13 of the forces in balance) and failed
+    every cut. A residual at round-off of ``‖J x‖`` has converged; here a tolerance below
+    round-off from the start (``snes_rtol`` 1e-16), which failed by the same stall
+    (DIVERGED_LINE_SEARCH after 94 iterations), gives the default run's jumps."""
     from poromech.io.results import read_table  # noqa: PLC0415
     from poromech.mechanics.newton import ROUNDOFF_FLOOR  # noqa: PLC0415
     from poromech.run import run_scene  # noqa: PLC0415
