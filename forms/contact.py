@@ -273,8 +273,7 @@ def displacement_residual(fk: FractureKinematics, p: ContactParameters, u, v, dG
                 terms.append(-p.theta / p.beta_t * ufl.inner(
                     _multiplier_t(lm, p) + _average(a, "traction_t", p),
                     fk.tangential_variation(v)))
-    if p.formulation in ("mixed", "stabilized_mixed", "mean_nitsche") \
-            and fk.initial_traction_mean is not None:
+    if fk.initial_traction_mean is not None and p.active and not pointwise(p):
         # The facewise formulations carry the face mean π⁰T of the traction; the in-situ part
         # σ⁰n⁺ varies along a face (σ⁰ linear in depth), and its remainder σ⁰n⁺ - π⁰(σ⁰n⁺) is
         # applied pointwise: the multiplier (or π⁰T) is then a facewise change from σ⁰n⁺, and

@@ -476,10 +476,8 @@ def test_auto_hands_a_failed_krylov_solve_to_mumps(monkeypatch):
 def test_auto_keeps_a_krylov_failure_where_mumps_would_not_fit(monkeypatch):
     """Without the memory for the factorization the run fails with the Krylov method's reason,
     and says that LU was not tried; an explicit ``iterative`` never switches."""
-    from poromech.mechanics import physics
-
     monkeypatch.setattr(resources, "ITERATIVE_FROM_UNKNOWNS_3D", 1_000)
-    monkeypatch.setattr(physics, "available_memory", lambda comm: (1e6, "MemAvailable"))
+    monkeypatch.setattr(resources, "available_memory", lambda comm: (1e6, "MemAvailable"))
     with pytest.raises(SolverError, match="DIVERGED_LINEAR_SOLVE"):
         penny_solution(MPI.COMM_WORLD, "solver.petsc.ksp_max_it=1")
     monkeypatch.undo()

@@ -287,6 +287,14 @@ class Poromechanics:
         w.darcy_seconds += time.perf_counter() - t1
         return np.concatenate([self.flow.cell_pressure, self.flow.fracture_pressure])
 
+    def _aperture(self) -> tuple[Array, int]:
+        """The aperture ``d₀ - [[u]]_n``, at least :data:`APERTURE_FLOOR` ``d₀``; faces clamped.
+
+        Collective (the count is global).
+        """
+        d, floor = self.d0 - self._jump_n(), APERTURE_FLOOR * self.d0
+        return np.maximum(d, floor), int(self.comm.allreduce(int(np.count_nonzero(d < floor))))
+
     def _jump_n(self) -> Array:
         return self.model.face_fields()["jump_n"] if self.nf else np.empty(0)
 
@@ -296,10 +304,8 @@ class Poromechanics:
         ``p_in`` and ``pf_in`` are the input pressures of ``g``, the centres of the fixed-stress
         terms.
         """
-        d = self.d0 - self._jump_n()
-        floor = APERTURE_FLOOR * self.d0
-        self._work.clamped = int(self.comm.allreduce(int(np.count_nonzero(d < floor))))
-        self.flow.set_aperture(np.maximum(d, floor))
+        aperture, self._work.clamped = self._aperture()
+        self.flow.set_aperture(aperture)
         fs = self.fixed_stress
         fixed = self.porosity0 + self.biot * (self.model.cell_divergence() - self.div0) \
             - self.storage * self.p0_cells - fs.beta * p_in
@@ -337,9 +343,7 @@ class Poromechanics:
                 f"after {rec.iterations} iterations{linear}", rec.reason, rec.residuals,
                 rec.as_dict())
         self.div0 = self.model.cell_divergence()
-        d, floor = self.d0 - self._jump_n(), APERTURE_FLOOR * self.d0
-        clamped = int(self.comm.allreduce(int(np.count_nonzero(d < floor))))
-        aperture = np.maximum(d, floor)
+        aperture, clamped = self._aperture()
         pb.set_aperture(aperture)
         self._step = None
         self.mech.accept(0.0)

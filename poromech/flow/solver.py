@@ -21,7 +21,7 @@ from petsc4py import PETSc
 
 from poromech.errors import SolverError
 from poromech.petsc_options import PrefixedOptions
-from poromech.scene.resources import available_memory, direct_solve_bytes
+from poromech.scene.resources import direct_fallback_fits
 
 log = logging.getLogger("poromech")
 
@@ -79,10 +79,8 @@ DIRECT_OPTIONS: dict[str, object] = {
 
 #: ``auto`` (the default of ``flow.linear_solver``): the iterative solver, which a failed Krylov
 #: solve (its reason, or :data:`TRUE_RESIDUAL_DROP`) hands to MUMPS LU for the rest of the run
-#: where the factorization fits in this many times its estimate
-#: (:func:`~poromech.scene.resources.direct_solve_bytes`) of the memory available, as the
-#: mechanics' ``solver.linear_solver: auto`` does; ``iterative`` keeps the failure.
-FALLBACK_MEMORY_MARGIN = 1.5
+#: where the factorization fits (:func:`~poromech.scene.resources.direct_fallback_fits`), as
+#: the mechanics' ``solver.linear_solver: auto`` does; ``iterative`` keeps the failure.
 
 #: A lagged preconditioner is rebuilt after a solve that took more than ``LAG_GROWTH`` times the
 #: iterations of its first solve plus ``LAG_SLACK`` (:attr:`LinearSolver.lagged`): an AMG set-up
@@ -222,7 +220,7 @@ class LinearSolver:
         prefix: Options prefix, ending in ``_`` (``flow_``).
         kind: ``iterative`` (CG + GAMG) or ``direct`` (LU with MUMPS) defaults; ``auto``: the
             iterative ones, and MUMPS for the rest of the run after a failed Krylov solve
-            where it fits (:data:`FALLBACK_MEMORY_MARGIN`; :attr:`fallback`).
+            where it fits (:attr:`fallback`).
         options: Options merged over the defaults, without the prefix.
         dim: Dimension of the mesh (the iterative defaults differ in 3D).
 
@@ -246,7 +244,6 @@ class LinearSolver:
         self.dim = dim
         self.auto = kind == "auto"
         self.fallback: str | None = None  # "direct" once a failed Krylov solve switched (auto)
-        self._x0: PETSc.Vec | None = None  # the initial guess of a solve (auto)
         self.ksp = PETSc.KSP().create(A.getComm())
         self.ksp.setOptionsPrefix(prefix)
         self.ksp.setOperators(A)
@@ -331,10 +328,6 @@ class LinearSolver:
                     self._guess = x.duplicate()
                 x.copy(self._guess)
             r0 = self._true_residual(b, x)
-            if self.auto and self.fallback is None:
-                if self._x0 is None:
-                    self._x0 = x.duplicate()
-                x.copy(self._x0)
             self.test.set_scales(b, x)
             self.ksp.solve(b, x)
             its = self.ksp.getIterationNumber()
@@ -349,8 +342,7 @@ class LinearSolver:
                 held = self._true_residual_held(b, x, r0)
             if (self.ksp.getConvergedReason() <= 0 or not held) and self.auto \
                     and self.fallback is None and self.switch_to_direct(its, r0):
-                self._x0.copy(x)
-                setup += self._set_up()
+                setup += self._set_up()  # LU from a zero guess: x is overwritten
                 lagged = False
                 self.ksp.solve(b, x)
                 held = True
@@ -401,16 +393,11 @@ class LinearSolver:
         why = ("the run continued here had switched the flow to MUMPS LU after a failed solve"
                if restart else f"the flow's {self.ksp.getType()}/{self.ksp.getPC().getType()} "
                f"solve failed ({reason} after {its} iterations)")
-        n = self.A.getSize()[0]
-        need = direct_solve_bytes(n, self.dim)
-        comm = self.A.getComm().tompi4py()
-        available, limit = available_memory(comm)
-        fits = FALLBACK_MEMORY_MARGIN * need <= available
-        log.warning("%s; flow.linear_solver auto: %s (about %.2g GB for %d unknowns, %.3g GB "
-                    "available, %s)", why,
+        fits, figures = direct_fallback_fits(self.A.getSize()[0], self.dim,
+                                             self.A.getComm().tompi4py())
+        log.warning("%s; flow.linear_solver auto: %s (%s)", why,
                     "switching to MUMPS LU for the rest of the run" if fits
-                    else "MUMPS LU does not fit and is not tried", need / 1e9, n,
-                    available / 1e9, limit)
+                    else "MUMPS LU does not fit and is not tried", figures)
         if not fits:
             return False
         self.fallback = "direct"
@@ -423,15 +410,19 @@ class LinearSolver:
         self.ksp.setOperators(self.A)
         return True
 
-    def _true_residual(self, b: PETSc.Vec, x: PETSc.Vec) -> float:
-        """``‖b - A x‖`` (collective; 0 without a Krylov method, which is not checked)."""
-        if self.ksp.getType() == PETSc.KSP.Type.PREONLY:
-            return 0.0
+    def _residual(self, b: PETSc.Vec, x: PETSc.Vec) -> PETSc.Vec:
+        """``b - A x`` in a work vector (collective)."""
         if self._work is None:
             self._work = b.duplicate()
         self.A.mult(x, self._work)
         self._work.aypx(-1.0, b)
-        return self._work.norm()
+        return self._work
+
+    def _true_residual(self, b: PETSc.Vec, x: PETSc.Vec) -> float:
+        """``‖b - A x‖`` (collective; 0 without a Krylov method, which is not checked)."""
+        if self.ksp.getType() == PETSc.KSP.Type.PREONLY:
+            return 0.0
+        return self._residual(b, x).norm()
 
     def _true_residual_held(self, b: PETSc.Vec, x: PETSc.Vec, r0: float) -> bool:
         """Whether a solve from the true residual ``r0`` reduced it as its tolerance asks.
@@ -455,12 +446,7 @@ class LinearSolver:
         error of the solve, which round-off sets when ``A`` is ill-conditioned (permeability
         contrasts); with AMG, an estimate of it. Uses the current preconditioner, no set-up.
         """
-        if self._work is None:
-            self._work = b.duplicate()
-        r = self._work
-        self.A.mult(x, r)
-        r.aypx(-1.0, b)
-        self.ksp.getPC().apply(r, out)
+        self.ksp.getPC().apply(self._residual(b, x), out)
         return out
 
     def describe(self) -> dict[str, object]:
@@ -476,6 +462,6 @@ class LinearSolver:
     def destroy(self) -> None:
         """Free the KSP and the lagged preconditioner's matrix."""
         self.ksp.destroy()
-        for obj in (self._P, self._guess, self._work, self._x0):
+        for obj in (self._P, self._guess, self._work):
             if obj is not None:
                 obj.destroy()

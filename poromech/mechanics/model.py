@@ -551,7 +551,7 @@ class MechanicsModel:
         c = self.params
         if (self.initial_stress is None or isinstance(self.initial_stress, fem.Constant)
                 or not self.has_fractures
-                or c.formulation not in ("mixed", "stabilized_mixed", "mean_nitsche")):
+                or not c.active or cforms.pointwise(c)):
             return None
         d = self.fm.msh.geometry.dim
         mean = fem.Function(self._dg0(d), name="initial_traction_mean")

@@ -50,8 +50,7 @@ from poromech.mesh.fractured import FracturedMesh, cracked_space
 from poromech.physics import Keyed, StepResult
 from poromech.scene.resources import (
     ELIMINATED_FORMULATIONS,
-    available_memory,
-    direct_solve_bytes_3d,
+    direct_fallback_fits,
     mechanics_solver,
 )
 from poromech.scene.schema import Scene, step_times
@@ -62,11 +61,6 @@ __all__ = ["MechanicsPhysics", "check_pieces", "floating_pieces", "formulation_o
 
 log = logging.getLogger("poromech")
 
-#: ``solver.linear_solver: auto`` hands a 3D run whose Krylov solve failed to MUMPS LU only when
-#: this many times the factorization's estimated memory is available (the estimate was within a
-#: factor 1.2 of the measured peaks, :mod:`poromech.scene.resources`): a run that would not fit
-#: fails with the Krylov method's message instead of being killed for want of memory.
-FALLBACK_MEMORY_MARGIN = 1.5
 #: Face fields written to ``fractures.xdmf`` and ``fractures.csv`` (besides ``state``).
 WRITTEN_FACE_FIELDS = ("jump_n", "jump_t", "traction_n", "traction_t")
 #: In 3D: the magnitudes and the global components of the tangential jump and traction.
@@ -297,22 +291,17 @@ class MechanicsPhysics:
     def _direct_fallback(self, failure: str, restart: bool = False) -> DirectSolver | None:
         """MUMPS LU for the rest of the run, after the first failed Krylov solve (``auto``).
 
-        Only where the factorization fits: :data:`FALLBACK_MEMORY_MARGIN` times its estimate
-        (:func:`~poromech.scene.resources.direct_solve_bytes_3d`) within the memory
-        available now; otherwise None, and the Newton fails as before. Said in one warning
-        (kept for ``summary.json``) either way (collective). ``restart``: the switch of the run
+        Only where the factorization fits (:func:`~poromech.scene.resources.direct_fallback_fits`);
+        otherwise None, and the Newton fails as before. Said in one warning (kept for
+        ``summary.json``) either way (collective). ``restart``: the switch of the run
         being continued (:meth:`restore`), ``failure`` unused.
         """
-        n = self.model.dof_count()
-        need = direct_solve_bytes_3d(n)
-        available, limit = available_memory(self.fm.comm)
-        fits = FALLBACK_MEMORY_MARGIN * need <= available
+        fits, figures = direct_fallback_fits(self.model.dof_count(), 3, self.fm.comm)
         what = ("solver.linear_solver auto: the mechanics switches to MUMPS LU for the rest of "
                 "the run" if fits else "MUMPS LU is not tried")
         why = ("the run continued here had switched to MUMPS LU after a failed iterative solve"
                if restart else f"the iterative linear solve failed ({failure})")
-        self.model.warn(f"{why}; {what} (about {need / 1e9:.2g} GB for {n} unknowns, "
-                        f"{available / 1e9:.3g} GB available, {limit})")
+        self.model.warn(f"{why}; {what} ({figures})")
         if not fits:
             return None
         self.fallback = "direct"
