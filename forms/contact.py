@@ -57,6 +57,7 @@ __all__ = [
     "average_names",
     "averages_residual",
     "complementarity_arguments",
+    "consistent_face_values",
     "contact_measure",
     "displacement_residual",
     "multiplier_mass",
@@ -302,16 +303,48 @@ def multiplier_mass(p: ContactParameters, lam, mu, dG):
     return ufl.inner(lam, mu) * contact_measure(p, dG)
 
 
-def averages_residual(fk: FractureKinematics, p: ContactParameters, u, avg, q, dG):
-    """Linear equations defining the face averages ``π⁰T(u)`` and ``π⁰[[u]]``, tested with ``q``."""
-    names = average_names(p)
-    a, r = _named(avg, names), _named(q, names)
+def _averaged(fk: FractureKinematics, p: ContactParameters, u) -> dict:
+    """The pointwise quantities whose face means are the average unknowns, by name."""
     exact = {"jump_n": normal_jump(u, fk.n), "traction_n": fk.normal_traction(u)}
     for name, value in (("jump_t", slip(u, fk.frame, fk.slip_reference)),
                         ("traction_t", fk.tangential_traction(u))):
         parts = _tangential_names(name, p)
         exact.update({parts[0]: value} if p.dim == 2 else
                      {k: value[i] for i, k in enumerate(parts)})
+    return exact
+
+
+def consistent_face_values(fk: FractureKinematics, p: ContactParameters, u):
+    """Pointwise values whose face means are the face unknowns consistent with ``u``.
+
+    ``(multiplier, averages)``: lists of UFL expressions in storage order (None for a
+    formulation without them). The multiplier balances the face mean of the traction,
+    ``λ = -π⁰T(u)`` (eq. (3): ``∫ λ·[[v]]`` stands for ``-∫ T(u)·[[v]]``), and the averages
+    are ``π⁰T(u)`` and ``π⁰[[u]]``. Under an in-situ stress the Newton then starts from the
+    face unknowns of the state ``u`` instead of zero, which are far from it (the traction of
+    a fracture at depth).
+    """
+    k = multiplier_size(p)
+    multiplier = None
+    if k:
+        tn = fk.normal_traction(u)
+        multiplier = [-tn]
+        if p.tangential:
+            tt = fk.tangential_traction(u)
+            multiplier += [-tt] if p.dim == 2 else [-tt[i] for i in range(p.dim - 1)]
+    names = average_names(p)
+    averages = None
+    if names:
+        exact = _averaged(fk, p, u)
+        averages = [exact[name] for name in names]
+    return multiplier, averages
+
+
+def averages_residual(fk: FractureKinematics, p: ContactParameters, u, avg, q, dG):
+    """Linear equations defining the face averages ``π⁰T(u)`` and ``π⁰[[u]]``, tested with ``q``."""
+    names = average_names(p)
+    a, r = _named(avg, names), _named(q, names)
+    exact = _averaged(fk, p, u)
     weight = {k: p.average_scale for k in names if k.startswith("jump_")}
     form = sum(weight.get(k, 1.0) * (a[k] - exact[k]) * r[k] for k in names)
     return form * contact_measure(p, dG)

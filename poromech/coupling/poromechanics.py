@@ -335,6 +335,7 @@ class Poromechanics:
         self.model.set_reference_pressure(self.p0_cells)
         self.mech.begin_step(0.0)
         self.model.set_pressures(pb.cell_pressure, pb.fracture_pressure)
+        self.model.start_face_unknowns()
         rec = self.mech.solve_contact()
         if not rec.converged:
             linear = f" ({rec.linear_failure})" if rec.linear_failure else ""

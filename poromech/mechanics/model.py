@@ -566,6 +566,32 @@ class MechanicsModel:
         mean.x.scatter_forward()
         return mean("+")
 
+    def start_face_unknowns(self) -> None:
+        """Set the multipliers and face averages consistent with ``u`` (collective).
+
+        Only under an in-situ stress ``σ⁰``: the traction of the initial state is then that of
+        the rock at depth, and face unknowns at zero are far from it (the Newton has to find
+        the whole traction, ``mixed`` P1 from multipliers that are not inf-sup stable). Without
+        ``σ⁰`` the unknowns stay at zero as before. Uses the current inputs (time, pressures).
+        """
+        if self.initial_stress is None or (self.lam is None and self.avg is None):
+            return
+        multiplier, averages = cforms.consistent_face_values(self.kinematics, self.params,
+                                                             self.u)
+        area = ufl.FacetArea(self.fm.msh)("+")
+        dG = cforms.contact_measure(self.params, fracture_measure(self.fm)(FRACTURE_TAG))
+        for f, values in ((self.lam, multiplier), (self.avg, averages)):
+            if f is None:
+                continue
+            q = ufl.TestFunction(f.function_space)("+")
+            qs = [q] if len(values) == 1 else [q[i] for i in range(len(values))]
+            form = fem.form(sum(v * qi for v, qi in zip(values, qs, strict=True)) / area * dG,
+                            entity_maps=self.entity_maps or None)
+            f.x.array[:] = 0.0
+            fem.assemble_vector(f.x.array, form)
+            f.x.scatter_reverse(dolfinx.la.InsertMode.add)
+            f.x.scatter_forward()
+
     def _tangent_frame(self) -> tuple | None:
         """The tangents ``(τ_1, τ_2)`` of the fractures in 3D, or None in 2D.
 

@@ -421,7 +421,15 @@ class MechanicsPhysics:
 
     # -- Physics interface -----------------------------------------------------------------
     def initialize(self) -> dict | None:
-        """Nothing to solve: the displacement starts at zero."""
+        """Nothing to solve: the displacement starts at zero.
+
+        The face unknowns start consistent with it
+        (:meth:`~poromech.mechanics.model.MechanicsModel.start_face_unknowns`, under an in-situ
+        stress only), and that is the state at ``t = 0`` of the first step's predictor.
+        """
+        self.model.start_face_unknowns()
+        self.predictor.time = 0.0
+        self.predictor.accept()
         return None
 
     def solve(self, t: float, dt: float | None) -> StepResult:
