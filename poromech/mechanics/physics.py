@@ -425,11 +425,11 @@ class MechanicsPhysics:
 
         The face unknowns start consistent with it
         (:meth:`~poromech.mechanics.model.MechanicsModel.start_face_unknowns`, under an in-situ
-        stress only), and that is the state at ``t = 0`` of the first step's predictor.
+        stress only), and that is the accepted state at ``t = 0``: the first step's predictor
+        and a cut of the first step start from it.
         """
         self.model.start_face_unknowns()
-        self.predictor.time = 0.0
-        self.predictor.accept()
+        self.accept(0.0)
         return None
 
     def solve(self, t: float, dt: float | None) -> StepResult:
