@@ -555,16 +555,26 @@ class MechanicsModel:
             return None
         d = self.fm.msh.geometry.dim
         mean = fem.Function(self._dg0(d), name="initial_traction_mean")
-        q = ufl.TestFunction(mean.function_space)("+")
-        area = ufl.FacetArea(self.fm.msh)("+")
-        dG = cforms.contact_measure(c, fracture_measure(self.fm)(FRACTURE_TAG))
         t0 = fk.initial_traction()
-        form = fem.form(sum(t0[i] * q[i] for i in range(d)) / area * dG,
-                        entity_maps=self.entity_maps or None)
-        fem.assemble_vector(mean.x.array, form)
-        mean.x.scatter_reverse(dolfinx.la.InsertMode.add)
-        mean.x.scatter_forward()
+        self._set_face_means(mean, [t0[i] for i in range(d)])
         return mean("+")
+
+    def _set_face_means(self, f: fem.Function, values: list) -> None:
+        """Set the DG0 face field ``f`` to the face means of ``values`` (collective).
+
+        ``values``: one UFL expression on the fracture facets per component of ``f``, averaged
+        with the contact quadrature.
+        """
+        q = ufl.TestFunction(f.function_space)("+")
+        qs = [q] if len(values) == 1 else [q[i] for i in range(len(values))]
+        area = ufl.FacetArea(self.fm.msh)("+")
+        dG = cforms.contact_measure(self.params, fracture_measure(self.fm)(FRACTURE_TAG))
+        form = fem.form(sum(v * qi for v, qi in zip(values, qs, strict=True)) / area * dG,
+                        entity_maps=self.entity_maps or None)
+        f.x.array[:] = 0.0
+        fem.assemble_vector(f.x.array, form)
+        f.x.scatter_reverse(dolfinx.la.InsertMode.add)
+        f.x.scatter_forward()
 
     def start_face_unknowns(self) -> None:
         """Set the multipliers and face averages consistent with ``u`` (collective).
@@ -578,19 +588,9 @@ class MechanicsModel:
             return
         multiplier, averages = cforms.consistent_face_values(self.kinematics, self.params,
                                                              self.u)
-        area = ufl.FacetArea(self.fm.msh)("+")
-        dG = cforms.contact_measure(self.params, fracture_measure(self.fm)(FRACTURE_TAG))
         for f, values in ((self.lam, multiplier), (self.avg, averages)):
-            if f is None:
-                continue
-            q = ufl.TestFunction(f.function_space)("+")
-            qs = [q] if len(values) == 1 else [q[i] for i in range(len(values))]
-            form = fem.form(sum(v * qi for v, qi in zip(values, qs, strict=True)) / area * dG,
-                            entity_maps=self.entity_maps or None)
-            f.x.array[:] = 0.0
-            fem.assemble_vector(f.x.array, form)
-            f.x.scatter_reverse(dolfinx.la.InsertMode.add)
-            f.x.scatter_forward()
+            if f is not None:
+                self._set_face_means(f, values)
 
     def _tangent_frame(self) -> tuple | None:
         """The tangents ``(τ_1, τ_2)`` of the fractures in 3D, or None in 2D.
