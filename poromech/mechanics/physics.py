@@ -429,7 +429,7 @@ class MechanicsPhysics:
         and a cut of the first step start from it.
         """
         self.model.start_face_unknowns()
-        self.accept(0.0)
+        self._keep_unknowns()
         return None
 
     def solve(self, t: float, dt: float | None) -> StepResult:
@@ -485,6 +485,10 @@ class MechanicsPhysics:
     def accept(self, t: float) -> None:
         """The solved displacement becomes the reference of the next slip increment."""
         self.model.accept_step()
+        self._keep_unknowns()
+
+    def _keep_unknowns(self) -> None:
+        """The current unknowns are the accepted ones: the predictor's and a step cut's."""
         self.predictor.accept()
         for saved, f in zip(self._saved, self.model.unknowns, strict=True):
             saved[:] = f.x.array
