@@ -576,21 +576,23 @@ class MechanicsModel:
         f.x.scatter_reverse(dolfinx.la.InsertMode.add)
         f.x.scatter_forward()
 
-    def start_face_unknowns(self) -> None:
+    def start_face_unknowns(self) -> bool:
         """Set the multipliers and face averages consistent with ``u`` (collective).
 
         Only under an in-situ stress ``σ⁰``: the traction of the initial state is then that of
         the rock at depth, and face unknowns at zero are far from it (the Newton has to find
         the whole traction, ``mixed`` P1 from multipliers that are not inf-sup stable). Without
         ``σ⁰`` the unknowns stay at zero as before. Uses the current inputs (time, pressures).
+        Returns whether they were set.
         """
         if self.initial_stress is None or (self.lam is None and self.avg is None):
-            return
+            return False
         multiplier, averages = cforms.consistent_face_values(self.kinematics, self.params,
                                                              self.u)
         for f, values in ((self.lam, multiplier), (self.avg, averages)):
             if f is not None:
                 self._set_face_means(f, values)
+        return True
 
     def _tangent_frame(self) -> tuple | None:
         """The tangents ``(τ_1, τ_2)`` of the fractures in 3D, or None in 2D.

@@ -425,11 +425,12 @@ class MechanicsPhysics:
 
         The face unknowns start consistent with it
         (:meth:`~poromech.mechanics.model.MechanicsModel.start_face_unknowns`, under an in-situ
-        stress only), and that is the accepted state at ``t = 0``: the first step's predictor
-        and a cut of the first step start from it.
+        stress only), and that is then the accepted state at ``t = 0``: the first step's
+        predictor and a cut of the first step start from it. Otherwise the predictor takes zero
+        unknowns as that state (:class:`~poromech.mechanics.predictor.StepPredictor`).
         """
-        self.model.start_face_unknowns()
-        self._keep_unknowns()
+        if self.model.start_face_unknowns():
+            self._keep_unknowns()
         return None
 
     def solve(self, t: float, dt: float | None) -> StepResult:
