@@ -365,3 +365,40 @@ def test_a_steady_fluid_at_rest_under_gravity_passes_its_mass_balance(tmp_path, 
     assert summary["flow"]["solver"]["ksp_type"] == "cg"
     fluxes = [abs(v["total"]) for v in summary["flow"]["solves"][0]["boundary_fluxes"].values()]
     assert max(fluxes) < 1e-10 * 1.0e-14 / 1.0e-3 * 1000.0 * 9.81 * (box[3] - box[0]) ** 2
+
+
+CLOSED = {
+    "name": "closed", "physics": "flow",
+    "geometry": {"domain": {"box": [0, 0, 0, 1, 1, 1]},
+                 "fractures": [{"name": "a", "polygon": [[0.0, 0.2, 0.3], [1.0, 0.2, 0.3],
+                                                         [1.0, 0.8, 0.7], [0.0, 0.8, 0.7]]},
+                               {"name": "b", "disc": {"center": [0.5, 0.5, 0.5],
+                                                      "normal": [1, 0, 0], "radius": 0.3}}]},
+    "mesh": {"size": 0.2, "fracture_size": 0.1},
+    "time": {"final": 10.0, "steps": 5},
+    "flow": {"permeability": [1.0e-2], "aperture": 1.0e-4, "biot_modulus": 1.0e9,
+             "porosity": 0.2, "initial_pressure": 1.0e5,
+             "boundary_conditions": [{"boundary": "left", "flux": -1.0e-6}]},
+}
+
+
+def test_a_closed_flow_whose_storage_is_below_round_off_is_refused(tmp_path):
+    """Without a pressure condition only the storage sets the pressure level. A closed box at
+    10 m² (a unit error) ran to a uniform negative pressure under injection, with flows through
+    impervious faces and a balance that looked closed; it is refused before any solve, naming
+    the key. At 1e-2 m² (condition estimate 2e15, below 1/ε) the storage takes up the inflow."""
+    from poromech.errors import ConfigError
+    from poromech.run import run_scene
+    from poromech.scene.loading import scene_from_dict
+
+    raw = json.loads(json.dumps(CLOSED))
+    raw["flow"]["permeability"] = [10.0]
+    with pytest.raises(ConfigError) as info:
+        run_scene(scene_from_dict(raw), tmp_path / "huge", comm)
+    msg = str(info.value)
+    assert "scene key 'flow.permeability' (up to 10 m²)" in msg and "below double precision" in msg
+    assert not (tmp_path / "huge" / "flow.xdmf").exists()
+    summary = run_scene(scene_from_dict(CLOSED), tmp_path / "ok", comm)
+    balance = summary["flow"]["solves"][-1]["mass_balance"]
+    assert balance["storage_rate"] == pytest.approx(1.0e-6, rel=1e-2)
+    assert balance["outflow"] == pytest.approx(-1.0e-6, rel=1e-2)

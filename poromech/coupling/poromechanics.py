@@ -44,7 +44,12 @@ from poromech.flow.balance import compute_fluxes, mass_balance
 from poromech.flow.output import FlowWriter
 from poromech.flow.physics import MASS_BALANCE_FAIL, flow_report, pressure_columns
 from poromech.flow.problem import TimeStep
-from poromech.flow.setup import flow_properties, problem_from_scene, time_dependent
+from poromech.flow.setup import (
+    check_pressure_level,
+    flow_properties,
+    problem_from_scene,
+    time_dependent,
+)
 from poromech.flow.state import FlowState
 from poromech.io.checkpoint import scalar_row
 from poromech.mechanics.model import PressureCoupling
@@ -192,6 +197,7 @@ class Poromechanics:
             self.flow.set_properties(replace(self.flow.properties,
                                              storage=self.storage + self.fixed_stress.beta,
                                              fracture_storage=self.fixed_stress.beta_f))
+        check_pressure_level(scene, self.flow)
         self.fixed_point = FixedPoint(self.comm, self.nc + self.nf, self.g,
                                       self._darcy_noise, scene.coupling)
         self.continuation = ContactContinuation(self.mech)

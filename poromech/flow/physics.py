@@ -19,7 +19,12 @@ from poromech.flow.balance import boundary_fluxes, compute_fluxes, mass_balance
 from poromech.flow.hfv import cell_gradients
 from poromech.flow.output import FlowWriter
 from poromech.flow.problem import DarcyProblem, TimeStep
-from poromech.flow.setup import flow_properties, problem_from_scene, time_dependent
+from poromech.flow.setup import (
+    check_pressure_level,
+    flow_properties,
+    problem_from_scene,
+    time_dependent,
+)
 from poromech.flow.state import FlowState
 from poromech.io.probes import LineSampler, open_probes
 from poromech.mesh.entities import fracture_segments
@@ -94,6 +99,7 @@ class FlowPhysics:
         self.scene, self.fm, self.timer = scene, fm, timer
         with timer.phase("flow_setup"):
             self.problem = problem_from_scene(scene, fm)
+            check_pressure_level(scene, self.problem)
         solver = self.problem.solver.describe()
         log.info("flow: %d unknowns (%s), solver %s/%s", self.problem.dofs.num_global,
                  ", ".join(f"{v} {k}" for k, v in self.problem.dofs.counts.items()),

@@ -24,7 +24,7 @@ import numpy.typing as npt
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from poromech.errors import ConfigError
+from poromech.errors import ConfigError, SolverError
 from poromech.flow import hfv
 from poromech.flow.boundary import FlowBoundary, boundary_dofs
 from poromech.flow.dofs import FlowDofs, number_dofs
@@ -55,6 +55,16 @@ __all__ = [
 ]
 
 Array = npt.NDArray[np.float64]
+#: Largest estimated condition number ``‖A‖∞ N / Σ storage`` of a flow system without a
+#: pressure condition, ``1/ε``: its pressure level is set by the storage term alone, and above
+#: it round-off decides that level. A closed 1 m box with two fractures fed through one face
+#: (time steps of 2 s, 1/M = 1e-9 1/Pa): at 2e15 (permeability 1e-2 m²) the storage took up
+#: the inflow to 1e-3, at 2e16 (1e-1 m²) to 27 %, at 2e18 (10 m², a unit error) the pressure
+#: was uniform and negative under injection with flows through impervious faces, and each
+#: step's balance looked closed (the round-off of the fluxes is its floor). A coupled closed
+#: box: 2e13 (1e-6 m²) ran, 1e16 (1e-3 m²) failed its fixed point, 2e19 (1 m²) "converged" to
+#: such pressures.
+CLOSED_CONDITION_MAX = 1.0 / np.finfo(float).eps
 #: HFV stabilization of the triangular fracture faces in 3D (``√d`` in the fracture's dimension).
 FRACTURE_BETA_3D = float(np.sqrt(2.0))
 #: A space-time field ``f(points, t)``: values at points ``(n, d)`` (m) and time ``t`` (s).
@@ -357,10 +367,56 @@ class DarcyProblem:
         key = dt if self._has_storage else None
         if self._values is not None and key == self._storage_dt:
             return
-        self._values = self.element_values(dt).flat()
+        values = self._set_values(dt)
+        problem = None if dt is None else self._pressure_level_problem(values, dt)
+        if problem is not None:
+            raise SolverError(f"the Darcy system of time steps of {dt:.3g} s is singular in "
+                              f"double precision: {problem}", "DIVERGED_PRESSURE_LEVEL")
+
+    def _set_values(self, dt: float | None) -> ElementValues:
+        """Push the matrix values of a steady solve or of steps of ``dt`` (collective)."""
+        values = self.element_values(dt)
+        self._values = values.flat()
         self.A.setValuesCOO(self._values, addv=PETSc.InsertMode.INSERT_VALUES)
         self.solver.operator_changed()
-        self._storage_dt = key
+        self._storage_dt = dt if self._has_storage else None
+        return values
+
+    def check_pressure_level(self, dt: float) -> None:
+        """Refuse steps of ``dt`` that would lose the pressure level to round-off (collective).
+
+        Raises ConfigError (:meth:`_pressure_level_problem`). Called at set-up with the longest
+        step; after it each assembly makes the same test and raises SolverError (a step cut
+        shortens the step; the conductances grow with the apertures).
+        """
+        problem = self._pressure_level_problem(self._set_values(dt), dt)
+        if problem is not None:
+            k = float(np.max(self.comm.allgather(float(np.max(self.properties.permeability,
+                                                                  initial=0.0)))))
+            raise ConfigError(f"scene key 'flow.permeability' (up to {k:.3g} m²) with time "
+                              f"steps of {dt:.3g} s: {problem}")
+
+    def _pressure_level_problem(self, values: ElementValues, dt: float) -> str | None:
+        """Why a closed system's pressure level is lost to round-off, or None (collective).
+
+        Without a pressure condition the conductances leave the pressure level free and only
+        the storage term ``Σ |K| s_K/Δt`` fixes it; the constant pressure's Rayleigh quotient,
+        ``Σ storage / N``, bounds the smallest eigenvalue, so that ``‖A‖∞ N / Σ storage``
+        estimates the condition number (:data:`CLOSED_CONDITION_MAX`).
+        """
+        closed = not self.comm.allreduce(len(self.bdofs.dirichlet[0]) > 0, op=MPI.LOR)
+        if not closed:
+            return None
+        storage = self.comm.allreduce(float(values.storage.sum() + values.fracture_storage.sum()))
+        kappa = self.A.norm(PETSc.NormType.INFINITY) * self.A.getSize()[0] / max(
+            storage, np.finfo(float).tiny)
+        if kappa <= CLOSED_CONDITION_MAX:
+            return None
+        return (f"with no pressure condition only the storage term sets the pressure level, and "
+                f"it is {1 / kappa:.1e} of the conductances, below double precision (allowed: "
+                f"a condition estimate ‖A‖∞ N/storage up to {CLOSED_CONDITION_MAX:.1e}, here "
+                f"{kappa:.1e}: check the permeability's units, or add a pressure condition, more "
+                "storage (flow.biot_modulus) or shorter steps)")
 
     @property
     def _has_storage(self) -> bool:

@@ -18,7 +18,7 @@ from poromech.geometry.plane import PlaneGeometry
 from poromech.mesh.entities import CellGeometry, cell_geometry
 from poromech.mesh.fractured import FracturedMesh
 from poromech.scene.expressions import Expression
-from poromech.scene.schema import Flow, Scene
+from poromech.scene.schema import Flow, Scene, step_times
 
 __all__ = ["flow_boundaries", "flow_properties", "problem_from_scene", "time_dependent"]
 
@@ -103,6 +103,18 @@ def problem_from_scene(scene: Scene, fm: FracturedMesh, prefix: str = "flow_") -
         geom=geom,
         gravity=None if scene.gravity is None else flow.fluid_density * np.asarray(scene.gravity),
     )
+
+
+def check_pressure_level(scene: Scene, problem: DarcyProblem) -> None:
+    """Refuse a transient scene whose longest step loses the pressure level (collective).
+
+    :meth:`~poromech.flow.problem.DarcyProblem.check_pressure_level` with the scene's longest
+    time step, before anything is solved; nothing for a steady scene.
+    """
+    if scene.time is None:
+        return
+    times = step_times(scene)
+    problem.check_pressure_level(float(np.max(np.diff([0.0, *times]))))
 
 
 def _is_zero(expr: Expression) -> bool:
