@@ -289,3 +289,24 @@ def test_a_fracture_shorter_than_the_mesher_resolves_is_refused():
            "boundary_conditions": [{"boundary": "bottom", "displacement": [0.0, 0.0]}]}
     with pytest.raises(ConfigError, match="fracture 'tiny' segment 0 .* is 1e-07 m long"):
         scene_from_dict(raw)
+
+
+def test_a_short_transition_keeps_the_fracture_size():
+    """gmsh measures the distance to samples of the fracture curves: with a ``transition``
+    shorter than their spacing the size between them grew to ``size``, and a 2 m crack at
+    ``fracture_size`` 1e-2 got 30 faces instead of 200 (with the default transition and 1e-3,
+    1,298 instead of 2,000). A constant field now holds the size on the fracture."""
+    for fracture_size, transition in ((1e-2, 1e-3), (1e-2, 1e-2), (1e-3, None)):
+        mesh = {"size": 0.25, "fracture_size": fracture_size, "tip_size": fracture_size}
+        if transition is not None:
+            mesh["transition"] = transition
+        raw = mechanics_scene(mesh=mesh)
+        raw["geometry"]["fractures"] = [{"name": "crack", "points": [[-1.0, 0.0], [1.0, 0.0]]}]
+        raw["geometry"]["domain"] = {"rectangle": [-3.0, -3.0, 3.0, 3.0]}
+        raw["boundary_conditions"] = [{"boundary": "bottom", "displacement": [0.0, 0.0]}]
+        scene = scene_from_dict(raw)
+        a = generate_mesh(scene_geometry(scene), mesh_sizes(scene))
+        ff = a.fracture_facets
+        length = np.linalg.norm(a.x[ff[:, 1]] - a.x[ff[:, 0]], axis=1)
+        assert len(ff) == pytest.approx(2.0 / fracture_size, rel=0.02)
+        assert length.max() < 1.1 * fracture_size

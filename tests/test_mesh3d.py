@@ -873,3 +873,17 @@ def test_a_fracture_of_a_few_faces_is_said_to_be_under_resolved(caplog):
         warn_unresolved_fractures(fm)
     said = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
     assert len(said) == 1 and said[0].startswith(f"fracture 'tiny' has only {counts[0]} face")
+
+
+def test_a_short_transition_keeps_the_fracture_size():
+    """gmsh measures the distance to samples of the fracture surface and tip curves: with a
+    ``transition`` of 0.005 against their spacing of about 0.04 a disc of radius 1 at
+    ``fracture_size`` 0.1 got 23 faces instead of about π/(√3/4 · 0.1²) = 725. A constant field
+    holds the size on the fracture where the sampling leaves more than
+    ``SAMPLING_EXCESS_3D`` of it."""
+    geo = BoxGeometry((-3.0, -3.0, -3.0, 3.0, 3.0, 3.0),
+                      (Fracture3D.disc("penny", [0, 0, 0], [0, 0, 1], 1.0),))
+    ar, _ = build_mesh_3d(geo, MeshSizes(2.0, 0.1, 0.1, 0.005))
+    h = np.sqrt(4 * _tri_area(ar.x, ar.fracture_facets) / np.sqrt(3))
+    assert len(ar.fracture_facets) > 0.9 * np.pi / (np.sqrt(3) / 4 * 0.1**2)
+    assert h.mean() < 1.1 * 0.1

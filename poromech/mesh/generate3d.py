@@ -41,6 +41,7 @@ from poromech.mesh.cracking import (
     unique_rows,
 )
 from poromech.mesh.generate import (
+    SAMPLING_EXCESS_3D,
     MeshArrays,
     MeshSizes,
     gmsh_session,
@@ -225,15 +226,24 @@ def _size_fields(gmsh, geo: BoxGeometry, surfaces: list[list[int]], tips: list[i
 
     fields = []
     all_surfaces = sorted({s for ss in surfaces for s in ss})
+    # the samples' largest gaps: a grid of n × n on a surface (its bounding box's largest side
+    # in each direction), n along a curve
+    side = max((float(np.ptp(np.reshape(gmsh.model.getBoundingBox(2, s), (2, 3)), axis=0).max())
+                for s in all_surfaces), default=0.0)
+    longest = max((gmsh.model.occ.getMass(1, c) for c in tips), default=0.0)
     if all_surfaces:
+        n = _sampling(extent, sizes.fracture_size, 20, 400)
         fields.append(threshold_field(fld, "SurfacesList", all_surfaces, sizes.fracture_size,
-                                      sizes, _sampling(extent, sizes.fracture_size, 20, 400)))
+                                      sizes, n, side / (np.sqrt(2.0) * (n - 1)),
+                                      SAMPLING_EXCESS_3D))
     if tips:
-        fields.append(threshold_field(fld, "CurvesList", tips, sizes.tip_size, sizes,
-                                      _sampling(extent, sizes.tip_size, 20, 2000)))
+        n = _sampling(extent, sizes.tip_size, 20, 2000)
+        fields.append(threshold_field(fld, "CurvesList", tips, sizes.tip_size, sizes, n,
+                                      longest / (2 * (n - 1)), SAMPLING_EXCESS_3D))
     finest = min((z.size for z in sizes.zones), default=sizes.fracture_size)
-    fields += zone_fields(fld, sizes, "SurfacesList", all_surfaces,
-                          _sampling(extent, finest, 20, 400))
+    n = _sampling(extent, finest, 20, 400)
+    fields += zone_fields(fld, sizes, "SurfacesList", all_surfaces, n,
+                          side / (np.sqrt(2.0) * (n - 1)), SAMPLING_EXCESS_3D)
     const = fld.add("MathEval")
     fld.setString(const, "F", repr(float(sizes.size)))
     fields.append(const)
