@@ -242,6 +242,28 @@ def test_fractures_the_mesh_cannot_tell_apart_are_refused():
     assert set(np.unique(arrays.fracture_id)) == {0, 1}
 
 
+@pytest.mark.parametrize("gap", [1e-8, 1e-7])
+def test_a_fracture_the_mesh_cannot_tell_from_the_boundary_is_refused(gap):
+    """A fracture parallel to a domain edge, 1e-8 or 1e-7 inside it (m, a 1 m square): gmsh
+    merged it with the edge, and the run stopped after meshing with an internal error (exit 1)
+    blaming a fracture "shorter than the mesh generator's tolerance". Refused, naming the
+    fracture and the edge; 1e-5 inside it meshes."""
+    from poromech.errors import ConfigError
+    from poromech.geometry.plane import PlaneGeometry
+    from poromech.mesh.generate import MeshSizes, generate_mesh
+
+    def geometry(dy):
+        box = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+        return PlaneGeometry(box, ("bottom", "right", "top", "left"),
+                             (np.array([[0.2, dy], [0.8, dy]]),), ("a",))
+
+    sizes = MeshSizes(size=0.1, fracture_size=0.05, tip_size=0.05, transition=0.1)
+    with pytest.raises(ConfigError, match="fracture 'a' and domain edge 0 share mesh faces"):
+        generate_mesh(geometry(gap), sizes)
+    arrays = generate_mesh(geometry(1e-5), sizes)
+    assert len(arrays.fracture_facets) >= 12
+
+
 def test_a_fracture_facet_without_two_sides_fails_on_every_rank():
     """A fracture facet with a cell on one side only (a 1e-7 m fracture at a T junction) raised
     on the rank that held it, while the other rank waited in the next collective: the run hung

@@ -308,24 +308,39 @@ def generate_mesh(geo: PlaneGeometry, sizes: MeshSizes) -> MeshArrays:
     ff = np.concatenate(ffacets) if ffacets else empty2
     fid = np.concatenate(fid) if fid else np.empty(0, dtype=np.int32)
     fseg = np.concatenate(fseg) if fseg else np.empty(0, dtype=np.int32)
-    _check_fracture_faces(geo, ff, fid)
     bf = np.concatenate(bfacets) if bfacets else empty2
     be = np.concatenate(bedge) if bedge else np.empty(0, dtype=np.int32)
+    _check_fracture_faces(geo, ff, fid, bf, be)
     return mesh_arrays(geo, x, cells, (ff, fid, fseg), (bf, be))
 
 
 def _check_fracture_faces(geo: PlaneGeometry, facets: npt.NDArray[np.int64],
-                          fracture: npt.NDArray[np.int32]) -> None:
-    """Every fracture has mesh faces, and no face belongs to two fractures.
+                          fracture: npt.NDArray[np.int32],
+                          boundary: npt.NDArray[np.int64] | None = None,
+                          edge: npt.NDArray[np.int32] | None = None) -> None:
+    """Every fracture has mesh faces, and no face belongs to two fractures or to the boundary.
 
     gmsh merges curves closer than its tolerance: two fractures crossing at a tiny angle
-    (1e-7 rad) shared their faces, and one of them vanished from the results without a word.
+    (1e-7 rad) shared their faces, and one of them vanished from the results without a word;
+    a fracture parallel to a domain edge 1e-8 of the domain's size inside it shared that
+    edge's faces, and the run stopped after meshing with an internal error.
 
     Raises:
-        ConfigError: Naming the fractures.
+        ConfigError: Naming the fractures (and the domain edge).
     """
     names = geo.fracture_names
     key = np.sort(facets, axis=1)
+    if boundary is not None and len(boundary) and len(key):
+        bkey = np.sort(boundary, axis=1)
+        both, in_f, in_b = np.intersect1d(
+            key.view([("a", key.dtype), ("b", key.dtype)]).ravel(),
+            bkey.view([("a", bkey.dtype), ("b", bkey.dtype)]).ravel(), return_indices=True)
+        if len(both):
+            name, e = names[int(fracture[in_f[0]])], int(edge[in_b[0]])
+            raise ConfigError(
+                f"fracture '{name}' and domain edge {e} share mesh faces: it runs along the "
+                "edge at a distance the mesh cannot resolve (allowed: move it away from the "
+                "edge, by more than about 1e-6 of the domain's size)")
     _, first, counts = np.unique(key, axis=0, return_index=True, return_counts=True)
     for f in first[counts > 1]:
         same = np.flatnonzero(np.all(key == key[f], axis=1))
