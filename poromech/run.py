@@ -248,6 +248,7 @@ class Run:
         section = physics.records_section
         (summary.setdefault(section, {}) if section else summary)["solves"] = self.records
         start, resume = 0, None
+        summary["completed_steps"] = 0  # a run that fails its first step says so
         if self.restart:
             start, resume = self._restore()
         else:

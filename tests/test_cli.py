@@ -119,6 +119,8 @@ def test_parallel_non_convergence_does_not_hang(tmp_path):
         capture_output=True, text=True, cwd=ROOT, timeout=300)
     assert proc.returncode == 3
     assert proc.stderr.count("did not converge") == 1  # reported once, by rank 0
+    summary = json.loads((tmp_path / "f" / "summary.json").read_text())
+    assert summary["completed_steps"] == 0  # the key was missing when the first step failed
 
 
 # -- exit status, output directory, shipped scenes ------------------------------------------------

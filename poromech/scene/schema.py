@@ -234,7 +234,8 @@ class MeshSpec:
 class Material:
     """Linear elastic matrix (plane strain in 2D)."""
 
-    young: Expr = field(metadata=doc("Young's modulus E (may vary in space)", "Pa", gt=0))
+    young: Expr = field(metadata=doc("Young's modulus E (may vary in space and time)", "Pa",
+                                     gt=0))
     poisson: Expr = field(metadata=doc("Poisson's ratio ν", "", gt=-1, lt=0.5))
     body_force: tuple[Expr, ...] | None = field(
         default=None, metadata=doc("body force f, one component per coordinate", "N/m³")
