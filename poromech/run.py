@@ -284,10 +284,15 @@ class Run:
         them, as when a finished run is extended): else the run would go back in time.
         """
         summary = self.summary
-        if meta["mesh"] != summary["mesh"] or meta.get("dofs") != summary.get("dofs"):
+        if meta["mesh"] != summary["mesh"]:
             raise ConfigError(f"the checkpoint was written for another mesh ({meta['mesh']}, "
                               f"{meta.get('dofs')} dofs) than this one ({summary['mesh']}, "
                               f"{summary.get('dofs')} dofs)")
+        if meta.get("dofs") != summary.get("dofs"):  # the same mesh: degree or formulation
+            raise ConfigError(f"the checkpoint was written for {meta.get('dofs')} unknowns on this "
+                              f"mesh, the scene has {summary.get('dofs')}: its degree, contact "
+                              "formulation or friction changed since (a restart continues the "
+                              "same discretization)")
         done, t = int(meta["steps_done"]), float(meta["time"])
         times = step_times(self.scene)
         if done > 0 and (done > len(times)

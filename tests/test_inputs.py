@@ -796,6 +796,11 @@ def test_restart_with_other_time_steps_is_refused(tmp_path, capsys):
     assert cli(capsys, "run", "--restart", out)[0] == 0
     times = [s["time"] for s in json.loads((out / "summary.json").read_text())["solves"]]
     assert times == [5.0, 10.0, 15.0, 20.0, 25.0, 30.0]
+    raw["degree"] = 3 - raw.get("degree", 1)  # the same mesh, another space (said "mesh")
+    stored.write_text(yaml.safe_dump(raw))
+    refused(capsys, "run", "--restart", out, fragments=["unknowns on this mesh",
+                                                         "its degree, contact formulation"])
+    raw["degree"] = 3 - raw["degree"]
     raw["mesh"]["size"] = 3.0 * raw["mesh"]["size"]  # another mesh: one line, exit 2 (was 1)
     stored.write_text(yaml.safe_dump(raw))
     refused(capsys, "run", "--restart", out, fragments=["written for another mesh"])
