@@ -422,6 +422,20 @@ def test_unlisted_interior_group_is_warned(square, caplog):
     assert "group 'aux'" in caplog.text and "not a fracture" in caplog.text
 
 
+def test_an_unnamed_group_is_warned_once(square, caplog):
+    """gmsh keeps one name per physical tag: a file whose two fracture groups were both named
+    "f" kept the name on one of them, and the other was dropped without a word (half the
+    network gone). Unnamed 1D groups are now said to be ignored, once per run (the file is
+    read when the scene is checked and again when it is meshed)."""
+    from poromech.run import build_mesh
+
+    x, cells, groups, p, d = square
+    path = write_msh(d / "m.msh", x, cells, groups, unnamed=[[(p(1, 1), p(2, 1))]])
+    with caplog.at_level(logging.WARNING, logger="poromech"):
+        build_mesh(scene_from_dict(mesh_scene(path)), MPI.COMM_WORLD)
+    assert caplog.text.count("without a name (tags 6) are ignored") == 1
+
+
 @pytest.mark.parametrize(
     ("change", "spec", "fragments"),
     [

@@ -546,7 +546,7 @@ def _polygon(x, loop: IntArray, names: list[str], tol: float):
 def mesh_from_groups(raw: RawMesh, fractures: Sequence[str],
                      boundaries: Mapping[str, Sequence[str]] | None = None,
                      starts: Mapping[str, Sequence[float]] | None = None,
-                     refinement: int = 0) -> ImportedMesh:
+                     refinement: int = 0, warn: bool = True) -> ImportedMesh:
     """Plane geometry and mesh arrays of a mesh with named groups.
 
     Args:
@@ -556,6 +556,8 @@ def mesh_from_groups(raw: RawMesh, fractures: Sequence[str],
             (and not a fracture) is a boundary of the same name.
         starts: Start point of fractures whose orientation is given explicitly, by name.
         refinement: Uniform refinements (each splits every triangle into four).
+        warn: Warn about the groups that are ignored (once per run: the file is read when the
+            scene is checked and again when it is meshed).
 
     Raises:
         MeshFileError: One line naming the scene key and the group.
@@ -582,7 +584,8 @@ def mesh_from_groups(raw: RawMesh, fractures: Sequence[str],
         boundaries = _default_boundaries(groups, fractures)
     names = _boundary_names(groups, loop, boundaries, fractures)
     polygon, edge_names, facet_edge = _polygon(x, loop, names, tol)
-    _warn_unused(groups, set(fractures) | {g for gs in boundaries.values() for g in gs})
+    if warn:
+        _warn_unused(groups, set(fractures) | {g for gs in boundaries.values() for g in gs})
     geo = PlaneGeometry(polygon, edge_names, tuple(f.points for f in fracs),
                         tuple(f.name for f in fracs))
     empty = np.empty(0, dtype=np.int32)
@@ -597,11 +600,19 @@ def mesh_from_groups(raw: RawMesh, fractures: Sequence[str],
 
 
 def _warn_unused(groups: _Groups, listed: set[str]) -> None:
-    """Warn about named groups inside the domain that are not fractures (they are ignored)."""
+    """Warn about named groups inside the domain that are not fractures, and unnamed groups.
+
+    Both are ignored. An unnamed group was dropped without a word: a file whose two fracture
+    groups were both named "f" kept the name on one of them, and half the network was gone.
+    """
     for name in sorted(set(groups.raw) - listed):
         if np.any(groups.counts(name) == 2):
             log.warning("group '%s' of the mesh file lies inside the domain but is not in "
                         "geometry.mesh.fractures: it is not a fracture", name)
+    if groups.unnamed:  # gmsh keeps one name per tag: two groups named alike lose one name
+        log.warning("the mesh file's 1D physical groups without a name (tags %s) are ignored: "
+                    "name them to use them as fractures or boundaries",
+                    ", ".join(map(str, groups.unnamed)))
 
 
 def refine_uniformly(x, cells, fracture: tuple, boundary: tuple):
@@ -638,7 +649,7 @@ def refine_uniformly(x, cells, fracture: tuple, boundary: tuple):
 def import_mesh(path: Path, fractures: Sequence[str],
                 boundaries: Mapping[str, Sequence[str]] | None = None,
                 starts: Mapping[str, Sequence[float]] | None = None,
-                refinement: int = 0) -> ImportedMesh:
+                refinement: int = 0, warn: bool = True) -> ImportedMesh:
     """Read a mesh file and build its plane geometry and mesh arrays (one rank).
 
     See :func:`mesh_from_groups` for the arguments.
@@ -647,7 +658,7 @@ def import_mesh(path: Path, fractures: Sequence[str],
         MeshFileError: One line naming the scene key and the group.
     """
     return mesh_from_groups(read_mesh_file(Path(path)), fractures, boundaries, starts,
-                            refinement)
+                            refinement, warn)
 
 
 def mesh_file_arrays(spec, geometry: PlaneGeometry, refinement: int) -> MeshArrays:
@@ -662,7 +673,7 @@ def mesh_file_arrays(spec, geometry: PlaneGeometry, refinement: int) -> MeshArra
         RuntimeError: The file no longer gives that geometry (it changed since validation).
     """
     imported = import_mesh(Path(spec.file), spec.fractures, spec.boundaries, spec.starts,
-                           refinement)
+                           refinement, warn=False)
     new = imported.geometry
     tol = 1e-12 * geometry.diameter
     same = (new.boundary_names == geometry.boundary_names
