@@ -127,6 +127,15 @@ def test_weight_and_stress_input_is_checked(change, message):
         scene_from_dict(raw)
 
 
+def test_a_density_without_gravity_in_3d_suggests_a_3d_gravity():
+    """The refusal's example had two components in a 3D scene too."""
+    raw = {"name": "d3", "geometry": {"domain": {"box": [0.0, 0.0, 0.0, 1.0, 1.0, 1.0]}},
+           "mesh": {"size": 0.5}, "material": {"young": E, "poisson": 0.25, "density": 2400.0},
+           "boundary_conditions": [{"boundary": "bottom", "displacement": [0.0, 0.0, 0.0]}]}
+    with pytest.raises(ConfigError, match=r"give gravity \(e.g. \[0, 0, -9.81\]\)"):
+        scene_from_dict(raw)
+
+
 def hydrostatic(physics: str = "flow", **extra) -> dict:
     """A water-saturated column with gravity: pressure fixed on top, impervious elsewhere."""
     raw = {

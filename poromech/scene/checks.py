@@ -16,7 +16,7 @@ from poromech.errors import ConfigError
 from poromech.geometry.plane import PlaneGeometry, segment_meets_polygon
 from poromech.scene.builder import field_meta, format_value
 from poromech.scene.resources import ITERATIVE_FORMULATIONS
-from poromech.scene.schema import Contact, Flow, FractureFlow, Material, Scene
+from poromech.scene.schema import Contact, Flow, FractureFlow, Material, Scene, scene_dimension
 from poromech.scene.values import (
     check_expression,
     check_field,
@@ -180,8 +180,9 @@ def _check_weight_and_stress(scene: Scene, geo: PlaneGeometry, times) -> None:
     """Density with gravity (each needs the other), and the initial stress's shape and data."""
     m = scene.material
     if m.density is not None and scene.gravity is None:
+        example = "[0, 0, -9.81]" if scene_dimension(scene) == 3 else "[0, -9.81]"
         raise ConfigError("scene key 'material.density' has no effect without gravity: give "
-                          "gravity (e.g. [0, -9.81]) or remove the density")
+                          f"gravity (e.g. {example}) or remove the density")
     if scene.gravity is not None and m.density is None:
         raise ConfigError("scene key 'material.density' is required with gravity (the weight of "
                           "the rock): give the bulk density in kg/m³")
