@@ -84,6 +84,9 @@ def test_invalid_values(overrides, fragments):
          ["overlap"]),
         ([{"points": [[0.0, 0.0], [1.0, 0.0]]}], ["runs along domain edge"]),
         ([{"points": [[0.2, 0.5]]}], ["at least 2"]),
+        # said "crosses or folds onto itself (segments 0, 2)"
+        ([{"points": [[0.2, 0.2], [0.5, 0.8], [0.8, 0.2], [0.2, 0.2]]}],
+         ["is a closed loop: its last point is its first, (0.2, 0.2)"]),
     ],
 )
 def test_invalid_geometry(fractures, fragments):

@@ -239,6 +239,10 @@ def check_geometry(geo: PlaneGeometry) -> None:
         label = f"fracture '{name}'"
         if len(pts) < 2:
             raise GeometryError(f"{label} has {len(pts)} point(s) (at least 2 needed)")
+        if len(pts) > 2 and np.linalg.norm(pts[-1] - pts[0]) <= tol:
+            raise GeometryError(f"{label} is a closed loop: its last point is its first, "
+                                f"{_point(pts[0])} (allowed: an open polyline; a closed one "
+                                "would cut a piece out of the domain)")
         segs = [(pts[i], pts[i + 1]) for i in range(len(pts) - 1)]
         for i, (a, b) in enumerate(segs):
             length = np.linalg.norm(b - a)

@@ -174,9 +174,11 @@ def _reject_gmsh_elements(gmsh, dim: int, allowed: Sequence[int]) -> None:
     types, tags, _ = gmsh.model.mesh.getElements(dim)
     for ty, t in zip(types, tags, strict=True):
         if ty not in allowed and len(t):
-            kind = gmsh.model.mesh.getElementProperties(ty)[0]
+            kind, edim = gmsh.model.mesh.getElementProperties(ty)[:2]
+            why = (": mesh files are read for 2D scenes only (a 3D scene meshes its box from "
+                   "geometry.domain.box and geometry.fractures)" if edim == 3 else "")
             raise MeshFileError("file", f"the mesh has {len(t)} '{kind}' elements (allowed: "
-                                "3-node triangles and 2-node lines of a first-order 2D mesh)")
+                                f"3-node triangles and 2-node lines of a first-order 2D mesh){why}")
 
 
 def _read_meshio(path: Path) -> RawMesh:

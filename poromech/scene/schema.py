@@ -649,7 +649,8 @@ class Output:
         default=True,
         metadata=doc("checkpoint.h5 after every step of a time-dependent run (for --restart)"),
     )
-    fractures_csv: bool = field(default=True, metadata=doc("fractures.csv, one row per face/time"))
+    fractures_csv: bool = field(default=True, metadata=doc("fractures.csv, one row per face/time "
+                                                           "(not written without fractures)"))
     every: int = field(default=1, metadata=doc("write every n-th time step", "", min=1))
 
 
