@@ -20,7 +20,8 @@ from poromech.mesh.fractured import FracturedMesh
 from poromech.scene.expressions import Expression
 from poromech.scene.schema import Flow, Scene, step_times
 
-__all__ = ["flow_boundaries", "flow_properties", "problem_from_scene", "time_dependent"]
+__all__ = ["check_pressure_level", "flow_boundaries", "flow_properties", "problem_from_scene",
+           "time_dependent"]
 
 #: Fracture coefficient fields: (Flow default, FractureFlow override) attribute names.
 _FRACTURE_FIELDS = {
