@@ -214,6 +214,8 @@ class DarcyProblem:
         self.crossings = FractureCrossings(self.comm, self.dofs, fm.fractures.fracture)
         self.boundary = tuple(boundary)
         self.bdofs = boundary_dofs(self.dofs, self.geom, fm.geometry, self.boundary, node_length)
+        #: No pressure condition anywhere: the storage alone sets the pressure level.
+        self.closed = not self.comm.allreduce(len(self.bdofs.dirichlet[0]) > 0, op=MPI.LOR)
         self._check_conditions_act()
         self.source, self.fracture_source = source, fracture_source
         self.beta = float(np.sqrt(float(self.dim))) if beta is None else float(beta)
@@ -367,19 +369,23 @@ class DarcyProblem:
         key = dt if self._has_storage else None
         if self._values is not None and key == self._storage_dt:
             return
-        values = self._set_values(dt)
+        values = self._set_values(dt, key)
         problem = None if dt is None else self._pressure_level_problem(values, dt)
         if problem is not None:
             raise SolverError(f"the Darcy system of time steps of {dt:.3g} s is singular in "
                               f"double precision: {problem}", "DIVERGED_PRESSURE_LEVEL")
 
-    def _set_values(self, dt: float | None) -> ElementValues:
-        """Push the matrix values of a steady solve or of steps of ``dt`` (collective)."""
+    def _set_values(self, dt: float | None, key: float | None) -> ElementValues:
+        """Push the matrix values of a steady solve or of steps of ``dt`` (collective).
+
+        ``key``: ``dt`` where the problem has storage, else None (the values do not depend on
+        it).
+        """
         values = self.element_values(dt)
         self._values = values.flat()
         self.A.setValuesCOO(self._values, addv=PETSc.InsertMode.INSERT_VALUES)
         self.solver.operator_changed()
-        self._storage_dt = dt if self._has_storage else None
+        self._storage_dt = key
         return values
 
     def check_pressure_level(self, dt: float) -> None:
@@ -389,7 +395,8 @@ class DarcyProblem:
         step; after it each assembly makes the same test and raises SolverError (a step cut
         shortens the step; the conductances grow with the apertures).
         """
-        problem = self._pressure_level_problem(self._set_values(dt), dt)
+        problem = self._pressure_level_problem(
+            self._set_values(dt, dt if self._has_storage else None), dt)
         if problem is not None:
             k = float(np.max(self.comm.allgather(float(np.max(self.properties.permeability,
                                                                   initial=0.0)))))
@@ -404,8 +411,7 @@ class DarcyProblem:
         ``Σ storage / N``, bounds the smallest eigenvalue, so that ``‖A‖∞ N / Σ storage``
         estimates the condition number (:data:`CLOSED_CONDITION_MAX`).
         """
-        closed = not self.comm.allreduce(len(self.bdofs.dirichlet[0]) > 0, op=MPI.LOR)
-        if not closed:
+        if not self.closed:
             return None
         storage = self.comm.allreduce(float(values.storage.sum() + values.fracture_storage.sum()))
         kappa = self.A.norm(PETSc.NormType.INFINITY) * self.A.getSize()[0] / max(

@@ -77,10 +77,10 @@ DIRECT_OPTIONS: dict[str, object] = {
     "pc_factor_mat_solver_type": "mumps",
 }
 
-#: ``auto`` (the default of ``flow.linear_solver``): the iterative solver, which a failed Krylov
-#: solve (its reason, or :data:`TRUE_RESIDUAL_DROP`) hands to MUMPS LU for the rest of the run
-#: where the factorization fits (:func:`~poromech.scene.resources.direct_fallback_fits`), as
-#: the mechanics' ``solver.linear_solver: auto`` does; ``iterative`` keeps the failure.
+# ``auto`` (the default of ``flow.linear_solver``): the iterative solver, which a failed Krylov
+# solve (its reason, or TRUE_RESIDUAL_DROP) hands to MUMPS LU for the rest of the run where the
+# factorization fits (poromech.scene.resources.direct_fallback_fits), as the mechanics'
+# ``solver.linear_solver: auto`` does; ``iterative`` keeps the failure.
 
 #: A lagged preconditioner is rebuilt after a solve that took more than ``LAG_GROWTH`` times the
 #: iterations of its first solve plus ``LAG_SLACK`` (:attr:`LinearSolver.lagged`): an AMG set-up
