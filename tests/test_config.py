@@ -87,6 +87,12 @@ def test_invalid_values(overrides, fragments):
         # said "crosses or folds onto itself (segments 0, 2)"
         ([{"points": [[0.2, 0.2], [0.5, 0.8], [0.8, 0.2], [0.2, 0.2]]}],
          ["is a closed loop: its last point is its first, (0.2, 0.2)"]),
+        # an empty name was renamed to the fracture's number
+        ([{"points": [[0.2, 0.5], [0.8, 0.5]], "name": " "}],
+         ["'geometry.fractures.0.name' = ' ' is empty", "no key for the 1-based number"]),
+        # an unnamed fracture took the number another one was named by: two fractures '2'
+        ([{"points": [[0.2, 0.5], [0.8, 0.5]], "name": "2"}, {"points": [[0.2, 0.3], [0.8, 0.3]]}],
+         ["'geometry.fractures': names repeat: ['2']", "names: ['2', '2']"]),
     ],
 )
 def test_invalid_geometry(fractures, fragments):

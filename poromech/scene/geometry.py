@@ -42,7 +42,7 @@ RECTANGLE_EDGES = ("bottom", "right", "top", "left")
 def scene_geometry(scene: Scene) -> PlaneGeometry | BoxGeometry:
     """The geometry of a scene: plane (2D, edge names resolved) or a box (3D, ``domain.box``)."""
     dom = scene.geometry.domain
-    fnames = tuple(f.name or str(i + 1) for i, f in enumerate(scene.geometry.fractures))
+    fnames = _names(scene.geometry.fractures)
     if dom.box is not None:
         fractures = []
         for f, name in zip(scene.geometry.fractures, fnames, strict=True):
@@ -51,8 +51,9 @@ def scene_geometry(scene: Scene) -> PlaneGeometry | BoxGeometry:
                                                  f.disc.radius))
             else:
                 fractures.append(Fracture3D.polygon(name, np.array(f.polygon, dtype=float)))
-        surfaces = tuple(Fracture3D.polygon(sf.name or str(i + 1), np.array(sf.polygon, float))
-                         for i, sf in enumerate(scene.geometry.surfaces))
+        surfaces = tuple(Fracture3D.polygon(name, np.array(sf.polygon, float))
+                         for sf, name in zip(scene.geometry.surfaces,
+                                             _names(scene.geometry.surfaces), strict=True))
         return BoxGeometry(tuple(float(v) for v in dom.box), tuple(fractures), surfaces)
     if dom.rectangle is not None:
         x0, y0, x1, y1 = dom.rectangle
@@ -119,9 +120,22 @@ def check_domain(scene: Scene) -> None:
     if scene.geometry.surfaces and dom.box is None:
         raise ConfigError("scene key 'geometry.surfaces' is for a box (3D) only: in 2D the mesh "
                           "conforms to fractures and domain edges")
-    names = [f.name for f in scene.geometry.fractures if f.name]
-    if len(set(names)) != len(names):
-        raise ConfigError(f"scene key 'geometry.fractures': fracture names repeat: {names}")
+    for key in ("fractures", "surfaces"):
+        items = getattr(scene.geometry, key)
+        for i, item in enumerate(items):
+            if item.name is not None and not item.name.strip():
+                raise ConfigError(f"scene key 'geometry.{key}.{i}.name' = {item.name!r} is "
+                                  "empty (allowed: a name, or no key for the 1-based number)")
+        names = _names(items)
+        if len(set(names)) != len(names):
+            repeated = sorted({n for n in names if names.count(n) > 1})
+            raise ConfigError(f"scene key 'geometry.{key}': names repeat: {repeated} (an "
+                              f"unnamed one is named by its 1-based number; names: {list(names)})")
+
+
+def _names(items) -> tuple[str, ...]:
+    """The names of fractures or surfaces: each one's ``name``, else its 1-based number."""
+    return tuple(str(i + 1) if item.name is None else item.name for i, item in enumerate(items))
 
 
 def _check_fracture_kinds(scene: Scene, box: bool) -> None:

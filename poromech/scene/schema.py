@@ -99,7 +99,8 @@ class FractureSpec:
                      "rule (counter-clockwise seen from the side n⁺ points to)", "m")
     )
     disc: Disc | None = field(default=None, metadata=doc("3D: a disc (below)"))
-    name: str = field(default="", metadata=doc("fracture name (default: its 1-based number)"))
+    name: str | None = field(default=None,
+                             metadata=doc("fracture name (default: its 1-based number)"))
 
 
 @dataclass(frozen=True)
@@ -117,8 +118,8 @@ class Surface:
         metadata=doc("vertices [[x, y, z], ...] of a planar polygon in the box or in a box face",
                      "m")
     )
-    name: str = field(default="", metadata=doc("name, for messages (default: its 1-based "
-                                               "number)"))
+    name: str | None = field(default=None, metadata=doc("name, for messages (default: its "
+                                                        "1-based number)"))
 
 
 @dataclass(frozen=True)
