@@ -222,11 +222,17 @@ class _RowUpdatedInverse:
     def __init__(self, n: int):
         self.base: npt.NDArray | None = None
         self.inverse: npt.NDArray | None = None
+        #: What the base is the Jacobian of (the caller's data, kept with it for a checkpoint).
+        self.origin = None
         self.max_rows = max(32, n // 5)
         self.inversions = 0
 
-    def solve(self, J: npt.NDArray, r: npt.NDArray) -> npt.NDArray:
-        """``J⁻¹ r`` (raises ``numpy.linalg.LinAlgError`` when ``J`` is singular)."""
+    def solve(self, J: npt.NDArray, r: npt.NDArray, origin=None) -> npt.NDArray:
+        """``J⁻¹ r`` (raises ``numpy.linalg.LinAlgError`` when ``J`` is singular).
+
+        ``origin()`` (what ``J`` is the Jacobian of) becomes :attr:`origin` when ``J`` becomes
+        the base.
+        """
         if self.base is not None:
             changed = np.flatnonzero(np.any(J != self.base, axis=1))
             y = self.inverse @ r
@@ -242,6 +248,7 @@ class _RowUpdatedInverse:
                     pass
         self.inverse = np.linalg.inv(J)
         self.base = J.copy()
+        self.origin = origin() if origin is not None else None
         self.inversions += 1
         return self.inverse @ r
 
@@ -461,8 +468,11 @@ class CondensedContact:
         coefficient, bound = self.law()
         dl = np.zeros_like(lam0)
 
+        def unknowns(d):
+            return lam0 + d, a1 + p.G @ d
+
         def residual(d, jacobian=False):
-            return p.residual(lam0 + d, a1 + p.G @ d, coefficient, bound, jacobian)
+            return p.residual(*unknowns(d), coefficient, bound, jacobian)
 
         R, J = residual(dl, True)
         norms = [float(np.linalg.norm(R))]
@@ -473,7 +483,7 @@ class CondensedContact:
             if it == MAX_IT or watchdog >= MAX_WATCHDOG or not np.isfinite(norms[-1]):
                 break
             try:
-                Y = self._inverse.solve(J, R)
+                Y = self._inverse.solve(J, R, lambda d=dl: (*unknowns(d), coefficient, bound))
             except np.linalg.LinAlgError:
                 break
             best, best_norm = 1.0, float(np.linalg.norm(residual(dl - Y)[0]))
@@ -492,6 +502,37 @@ class CondensedContact:
         usable = bool(norms[-1] <= tol)
         return {"converged": usable, "iterations": len(norms) - 1, "residuals": norms,
                 "step": dl if usable else None}
+
+    # -- checkpoint -------------------------------------------------------------------------
+    def base_unknowns(self, v: PETSc.Vec) -> tuple[float, float] | None:
+        """Write where the kept face inverse's base Jacobian was taken into ``v`` (collective).
+
+        The face rows (``λ`` and ``a``) of block vector ``v`` are set to the unknowns of that
+        Jacobian; returns the friction coefficient and Tresca bound it was taken with, or None
+        (``v`` untouched) before the first inversion. A restart rebuilds the same base from them
+        (:meth:`set_base`), so that its Woodbury solves repeat the uninterrupted run's bit for bit.
+        """
+        origin = self._inverse.origin if self.comm.rank == 0 else None
+        law = self.comm.bcast(None if origin is None else (origin[2], origin[3]), root=0)
+        if law is None:
+            return None
+        values = None
+        if self.comm.rank == 0:
+            values = np.zeros(self._seq.getSize())
+            values[self.lam_pos], values[self.avg_pos] = origin[0], origin[1]
+        self.scatter_faces(values, v)
+        return law
+
+    def set_base(self, v: PETSc.Vec, law: tuple[float, float]) -> None:
+        """Invert the face Jacobian at the face rows of ``v`` as the kept base (collective)."""
+        values = self.gather(v)
+        if self.comm.rank != 0:
+            return
+        lam, a = values[self.lam_pos], values[self.avg_pos]
+        J = self.problem.residual(lam, a, *law, jacobian=True)[1]
+        inverse = self._inverse
+        inverse.base, inverse.inverse = None, None
+        inverse.solve(J, np.zeros(lam.size), lambda: (lam, a, *law))
 
     def describe(self) -> dict:
         """Size and work of the condensation, for the summary.

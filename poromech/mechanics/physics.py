@@ -16,6 +16,8 @@ from pathlib import Path
 import dolfinx_solver  # noqa: F401
 
 import numpy as np
+from dolfinx import fem
+from dolfinx.fem.petsc import assign
 from mpi4py import MPI
 from petsc4py import PETSc
 
@@ -636,7 +638,45 @@ class MechanicsPhysics:
             for f, a in zip(m.unknowns, arrays, strict=True):
                 out[f"previous_{f.name}"] = self._rows(f, a)
             out["previous_time"] = scalar_row(self.fm.comm, t0)
+        out.update(self._condensed_base())
         return out
+
+    def _condensed_base(self) -> dict[str, Keyed]:
+        """Where the condensed solve's kept face inverse was taken, if it has one (collective).
+
+        A restart that inverted the face Jacobian anew at its first solve would take other
+        round-off than the uninterrupted run, whose Woodbury updates start from an older base.
+        """
+        condensed = self.solver.condensed
+        if condensed is None:
+            return {}
+        v = self.solver.x.duplicate()
+        law = condensed.base_unknowns(v)
+        out = {}
+        if law is not None:
+            v.ghostUpdate(PETSc.InsertMode.INSERT, PETSc.ScatterMode.FORWARD)
+            faces = [fem.Function(f.function_space) for f in self.model.unknowns]
+            assign(v, faces)
+            for f, g in zip(self.model.unknowns[1:], faces[1:], strict=True):
+                out[f"condensed_base_{f.name}"] = self._rows(f, g.x.array)
+            out["condensed_base_coefficient"] = scalar_row(self.fm.comm, law[0])
+            out["condensed_base_bound"] = scalar_row(self.fm.comm, law[1])
+        v.destroy()
+        return out
+
+    def _restore_condensed_base(self, arrays: dict) -> None:
+        """Rebuild the condensed solve's face inverse where the continued run had it."""
+        condensed = self.solver.condensed
+        if condensed is None or "condensed_base_coefficient" not in arrays:
+            return
+        m = self.model
+        for f in m.unknowns[1:]:
+            self._set_rows(f, arrays[f"condensed_base_{f.name}"])
+        v = self.solver.x.duplicate()
+        assign(m.unknowns, v)
+        condensed.set_base(v, (float(arrays["condensed_base_coefficient"][0]),
+                               float(arrays["condensed_base_bound"][0])))
+        v.destroy()
 
     def restore(self, arrays: dict, t: float) -> None:
         """Set the unknowns of the step ending at ``t`` from checkpoint arrays; accept them.
@@ -647,6 +687,7 @@ class MechanicsPhysics:
         m = self.model
         self._restore_linear_choices(arrays)
         self._prime_linear_solver()
+        self._restore_condensed_base(arrays)
         previous = None
         if "previous_time" in arrays:
             for f in m.unknowns:
