@@ -163,6 +163,20 @@ def test_time_dependent_data_checked_at_every_step():
         scene_from_dict(raw)
 
 
+def test_a_flow_condition_is_checked_only_where_it_acts():
+    """A value that is nan off the faces its ``where`` selects was refused at such a point
+    (``y = 0`` for ``where: y > 0.5``); nan inside them still is."""
+    def scene(pressure):
+        return flow_scene(boundary_conditions=[
+            {"boundary": "left", "pressure": 1e5},
+            {"boundary": "right", "pressure": pressure, "where": "y > 0.5"}])
+
+    scene_from_dict(scene("1e5*(1 + sqrt(y - 0.5))"))
+    with pytest.raises(ConfigError, match=r"boundary_conditions\.1\.pressure.* is nan at x=1, "
+                                          r"y=0\.[5-9]"):
+        scene_from_dict(scene("1e5*(1 + sqrt(0.5 - y))"))
+
+
 def test_field_invalid_only_outside_a_nonconvex_domain_is_accepted():
     raw = mechanics_scene()
     raw["geometry"] = {"domain": {"polygon": [[0, 0], [2, 0], [2, 1], [1, 1], [1, 2], [0, 2]],

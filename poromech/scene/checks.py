@@ -286,8 +286,6 @@ def _check_flow_boundaries(scene: Scene, geo: PlaneGeometry) -> None:
         if (bc.pressure is None) == (bc.flux is None):
             raise ConfigError(f"scene key '{path}' needs exactly one of pressure, flux")
         points, times = edge_points(geo, bc.boundary), check_times(scene)
-        for kind in ("pressure", "flux"):
-            check_expression(getattr(bc, kind), points, f"{path}.{kind}", None, times)
         if bc.where is not None:
             if bc.where.depends_on_time:
                 raise ConfigError(f"scene key '{path}.where' = {format_value(bc.where.source)} "
@@ -295,10 +293,14 @@ def _check_flow_boundaries(scene: Scene, geo: PlaneGeometry) -> None:
             # nan != 0 would select a face without a word
             check_expression(bc.where, points, f"{path}.where", None, [0.0],
                              f"a point of boundary '{bc.boundary}'")
-            if not np.any(bc.where(points, 0.0) != 0):
+            selected = np.broadcast_to(bc.where(points, 0.0) != 0, points.shape[:1])
+            if not np.any(selected):
                 raise ConfigError(f"scene key '{path}.where' = {format_value(bc.where.source)} "
                                   f"is zero everywhere on boundary {bc.boundary!r} (allowed: "
                                   "an expression nonzero on part of it)")
+            points = points[selected]  # the value is used only where the condition acts
+        for kind in ("pressure", "flux"):
+            check_expression(getattr(bc, kind), points, f"{path}.{kind}", None, times)
     transient_storage = scene.time is not None and flow.biot_modulus is not None
     if not transient_storage and all(bc.pressure is None for bc in flow.boundary_conditions):
         raise ConfigError(
