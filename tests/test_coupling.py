@@ -689,3 +689,37 @@ def test_a_negative_porosity_is_reported(caplog):
         run.execute()
         assert run.physics.accepted.porosity.min() < -1e-4
     assert not [r for r in caplog.records if "porosity is negative" in r.getMessage()]
+
+
+@pytest.mark.parametrize("formulation", [None, "mixed", "nitsche"])
+def test_a_confined_box_under_uniform_pressure_stays_at_rest(tmp_path, formulation):
+    """Rollers on every side, a uniform initial pressure and a uniform source: u = 0 is the
+    exact solution, and the pressure rises by ``M q t``. The mechanics residual at rest is the
+    round-off of the pressure's forces, and the relative tolerance, taken from it, could not be
+    met: the initial equilibrium failed after 100 Newton iterations (exit 3), every step after
+    4 cuts. Such a residual is now compared with the reactions on the rollers."""
+    raw = {
+        "name": "confined", "physics": "poromechanics",
+        "geometry": {"domain": {"rectangle": [0.0, 0.0, 1.0, 1.0]}},
+        "mesh": {"size": 0.25}, "degree": 2,
+        "material": {"young": 1.0e9, "poisson": 0.3, "biot": 1.0},
+        "boundary_conditions": [
+            {"boundary": "bottom", "displacement": [None, 0.0]},
+            {"boundary": "top", "displacement": [None, 0.0]},
+            {"boundary": "left", "displacement": [0.0, None]},
+            {"boundary": "right", "displacement": [0.0, None]}],
+        "time": {"final": 100.0, "steps": 2},
+        "flow": {"permeability": [1.0e-15], "viscosity": 1.0e-3, "biot_modulus": 1.0e10,
+                 "porosity": 0.2, "initial_pressure": 1.0e6, "source": 1.0e-6},
+    }
+    if formulation is not None:
+        raw["geometry"]["fractures"] = [{"points": [[0.3, 0.4], [0.7, 0.6]]}]
+        raw["mesh"]["fracture_size"] = 0.1
+        raw["contact"] = {"formulation": formulation, "friction_coefficient": 0.5}
+        raw["flow"]["aperture"] = 1.0e-4
+    summary = run_scene(scene_from_dict(raw), tmp_path)
+    assert summary["status"] == "converged" and summary["completed_steps"] == 2
+    p = read_series(tmp_path, "flow").fields(-1)["p_m"]
+    assert np.allclose(p, 1.0e6 + 1.0e10 * 1.0e-6 * 100.0, rtol=1e-9)
+    u = read_series(tmp_path, "displacement").fields(-1)["u"]
+    assert np.abs(u).max() <= 1e-12 * 1.0e6 / 1.0e9  # of α p L / E

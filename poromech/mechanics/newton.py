@@ -332,6 +332,10 @@ class SemiSmoothNewton:
         self._bcs_cols = bcs_by_block(extract_function_spaces(self.J, 1), self.bcs)
         self._bc_gap = self.b.duplicate()  # x - g on the Dirichlet dofs (_dirichlet_exact)
         self._bc_gap.setAttr("_blocks", self._blocks)
+        self._reaction_rows = self._dirichlet_rows()
+        #: ``‖R‖``, the residual's rows of the Dirichlet dofs before they are set: the
+        #: reactions, forces in balance that the round-off test also compares with.
+        self.reactions = 0.0
         self.line_search = line_search
         self.ls = LineSearchParameters(one_sided=one_sided,
                                        nonmonotone=NONMONOTONE_STEPS if curved else 0)
@@ -436,7 +440,7 @@ class SemiSmoothNewton:
             strategy.destroy()
         own_ksp = None if self._is_python() else self.ksp  # not the SNES's
         for obj in (self.snes, own_ksp, self.A, self.b, self.x, self._cache_x, self._cache_f,
-                    self._K, self._bc_gap, self._forces_work):
+                    self._K, self._bc_gap, self._reaction_rows, self._forces_work):
             if obj is not None:
                 obj.destroy()
 
@@ -475,8 +479,20 @@ class SemiSmoothNewton:
         if not self._dirichlet_exact(x):
             apply_lifting(b, self.J, bcs=self._bcs_cols, x0=x, alpha=-1.0)
         dolfinx.la.petsc._ghost_update(b, PETSc.InsertMode.ADD, PETSc.ScatterMode.REVERSE)
+        self._bc_gap.pointwiseMult(b, self._reaction_rows)
+        self.reactions = self._bc_gap.norm()
         set_bc(b, self._bcs_rows, x0=x, alpha=-1.0)
         dolfinx.la.petsc._ghost_update(b, PETSc.InsertMode.INSERT, PETSc.ScatterMode.FORWARD)
+
+    def _dirichlet_rows(self) -> PETSc.Vec:
+        """A vector of 1 on the Dirichlet dofs and 0 elsewhere, in the block layout."""
+        marks = [fem.Function(f.function_space) for f in self.u]
+        for mark, bcs in zip(marks, self._bcs_rows, strict=True):
+            for bc in bcs:
+                mark.x.array[bc.dof_indices()[0]] = 1.0
+        rows = self.b.duplicate()
+        assign(marks, rows)
+        return rows
 
     def _dirichlet_exact(self, x: PETSc.Vec) -> bool:
         """Whether ``x`` equals the Dirichlet values exactly on every rank (collective)."""
@@ -673,6 +689,8 @@ class SemiSmoothNewton:
             return R.CONVERGED_FNORM_ABS
         if fnorm <= rtol * self.reference_norm:
             return R.CONVERGED_FNORM_RELATIVE
+        if fnorm <= ROUNDOFF_FLOOR * self.reactions:
+            return R.CONVERGED_FNORM_ABS  # at the round-off of the reactions
         if it > 0 and fnorm <= ROUNDOFF_WINDOW * rtol * self.reference_norm \
                 and fnorm <= ROUNDOFF_FLOOR * self._forces(snes.getSolution()):
             return R.CONVERGED_FNORM_ABS  # at round-off
