@@ -42,6 +42,8 @@ def _error(raw) -> str:
         ({"contact__beta_n": 0}, ["contact.beta_n", "> 0"]),
         ({"contact__friction_coefficient": -0.1}, ["friction_coefficient", ">= 0"]),
         ({"contact__friction": "tresca"}, ["contact.slip_bound", "tresca"]),
+        ({"contact__friction": "tresca", "contact__slip_bound": "1e5*(1 + y)"},
+         ["contact.slip_bound", "must not depend on x or y (a number"]),
         ({"mesh__size": 0}, ["mesh.size", "> 0"]),
         ({"mesh__refinement": -1}, ["mesh.refinement", ">= 0"]),
         ({"time": {"final": 1.0, "steps": 10**9}}, ["time.steps", "1000000000", "<= 1000000"]),

@@ -71,6 +71,16 @@ def test_3d_friction_is_not_piecewise_affine(friction, expected):
         assert p.piecewise_affine is want
 
 
+def test_a_tresca_bound_varying_in_z_is_refused_naming_z():
+    """It said the bound "must not depend on x or y" of a bound that depends on z only."""
+    from poromech.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"'contact.slip_bound' = '1e5\*\(1 \+ z\)' is not "
+                                          r"allowed: the Tresca slip bound must not depend on "
+                                          r"x, y or z \(a number"):
+        load_scene(SHEAR, ["contact.friction=tresca", "contact.slip_bound=1e5*(1 + z)"])
+
+
 @pytest.mark.parametrize("degree", [1, 2])
 def test_contact_points_are_the_quadrature_points(degree):
     """On triangles the active set is read at the points of the contact quadrature (one

@@ -794,12 +794,17 @@ class MechanicsModel:
         where = self._largest_entry(W, np.abs(r).max(axis=1, initial=0.0))
         out = {"residual": norm, "scale": scale, "relative": relative, "where": where}
         if relative > IMBALANCE_LIMIT:
-            place = "in the interior" if where == "interior" else f"on boundary {where!r}"
+            if where == "interior":
+                place, remedy = "in the interior", ("give the density and gravity that balance "
+                                                    "div σ⁰, or a σ⁰ whose divergence they are")
+            else:
+                place, remedy = f"on boundary {where!r}", (
+                    "give that boundary the traction σ⁰n, a displacement condition, or the "
+                    "density and gravity that balance div σ⁰")
             raise ConfigError(
                 f"scene key 'material.initial_stress' is not in equilibrium with the body force "
                 f"and the boundary tractions at t = 0: the residual is {relative:.2g} of the "
-                f"loads, largest {place} (give that boundary the traction σ⁰n, a displacement "
-                "condition, or the density and gravity that balance div σ⁰)")
+                f"loads, largest {place} ({remedy})")
         if relative > 1e-8:
             log.warning("the initial stress is in equilibrium to %.1e of the loads only (largest "
                         "on %s): the imbalance moves the body at the first solve", relative, where)

@@ -64,8 +64,9 @@ def _check_mechanics(scene: Scene, geo: PlaneGeometry) -> None:
     if c.slip_bound is not None and not c.slip_bound.is_uniform:
         raise ConfigError(f"scene key 'contact.slip_bound' = {format_value(c.slip_bound.source)} "
                           "is not "
-                          "allowed: the Tresca slip bound must not depend on x or y (a number, "
-                          "or an expression in t)")
+                          f"allowed: the Tresca slip bound must not depend on "
+                          f"{'x, y or z' if geo.dim == 3 else 'x or y'} (a number, or an "
+                          "expression in t)")
     if c.friction == "tresca" and c.slip_bound is None:
         raise ConfigError(
             "scene key 'contact.slip_bound' is required when contact.friction is tresca"
