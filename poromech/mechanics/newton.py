@@ -336,6 +336,7 @@ class SemiSmoothNewton:
         #: ``‖R‖``, the residual's rows of the Dirichlet dofs before they are set: the
         #: reactions, forces in balance that the round-off test also compares with.
         self.reactions = 0.0
+        self._cache_reactions = 0.0
         self.line_search = line_search
         self.ls = LineSearchParameters(one_sided=one_sided,
                                        nonmonotone=NONMONOTONE_STEPS if curved else 0)
@@ -453,11 +454,13 @@ class SemiSmoothNewton:
             self._cache_x.axpy(1.0, x)
             if same:
                 self._cache_f.copy(b)
+                self.reactions = self._cache_reactions
                 self.record.time_assembly += time.perf_counter() - t0
                 return
         self._assemble_residual(x, b)
         x.copy(self._cache_x)
         b.copy(self._cache_f)
+        self._cache_reactions = self.reactions
         self._cache_valid = True
         self.record.residual_evaluations += 1
         self.record.time_assembly += time.perf_counter() - t0
