@@ -441,7 +441,7 @@ class SemiSmoothNewton:
             strategy.destroy()
         own_ksp = None if self._is_python() else self.ksp  # not the SNES's
         for obj in (self.snes, own_ksp, self.A, self.b, self.x, self._cache_x, self._cache_f,
-                    self._K, self._bc_gap, self._reaction_rows, self._forces_work):
+                    self._K, self._bc_gap, self._forces_work):
             if obj is not None:
                 obj.destroy()
 
@@ -482,20 +482,22 @@ class SemiSmoothNewton:
         if not self._dirichlet_exact(x):
             apply_lifting(b, self.J, bcs=self._bcs_cols, x0=x, alpha=-1.0)
         dolfinx.la.petsc._ghost_update(b, PETSc.InsertMode.ADD, PETSc.ScatterMode.REVERSE)
-        self._bc_gap.pointwiseMult(b, self._reaction_rows)
-        self.reactions = self._bc_gap.norm()
+        owned = b.getArray(readonly=True)[self._reaction_rows]
+        self.reactions = float(np.sqrt(self.comm.allreduce(float(owned @ owned))))
         set_bc(b, self._bcs_rows, x0=x, alpha=-1.0)
         dolfinx.la.petsc._ghost_update(b, PETSc.InsertMode.INSERT, PETSc.ScatterMode.FORWARD)
 
-    def _dirichlet_rows(self) -> PETSc.Vec:
-        """A vector of 1 on the Dirichlet dofs and 0 elsewhere, in the block layout."""
+    def _dirichlet_rows(self) -> np.ndarray:
+        """The owned rows of the Dirichlet dofs in the block layout (local indices)."""
         marks = [fem.Function(f.function_space) for f in self.u]
         for mark, bcs in zip(marks, self._bcs_rows, strict=True):
             for bc in bcs:
                 mark.x.array[bc.dof_indices()[0]] = 1.0
         rows = self.b.duplicate()
         assign(marks, rows)
-        return rows
+        out = np.flatnonzero(rows.getArray(readonly=True))
+        rows.destroy()
+        return out
 
     def _dirichlet_exact(self, x: PETSc.Vec) -> bool:
         """Whether ``x`` equals the Dirichlet values exactly on every rank (collective)."""
