@@ -1,5 +1,7 @@
 """The semi-smooth Newton solver: Jacobian consistency, line search, factorization reuse."""
 
+import csv
+
 import dolfinx.fem.petsc
 import numpy as np
 import pytest
@@ -8,7 +10,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from poromech.errors import SolverError
-from poromech.run import Run, build_mesh
+from poromech.run import Run, build_mesh, run_scene
 from poromech.scene.loading import load_scene
 
 comm = MPI.COMM_WORLD
@@ -533,3 +535,39 @@ def test_a_residual_at_round_off_has_converged(tmp_path):
     for key in ("jump_n", "jump_t"):
         assert np.allclose(a[key], b[key], rtol=0, atol=1e-8 * np.abs(b["jump_t"]).max())
     assert ROUNDOFF_FLOOR < 1e-10  # below the default relative tolerance
+
+
+@pytest.mark.parametrize("formulation", ["mixed", "nitsche"])
+def test_a_stiffness_contrast_converges_at_the_round_off_of_its_terms(tmp_path, formulation):
+    """A layer of E = 1e4 Pa under one of 1e10 Pa, a horizontal interface and an inclined crack,
+    compressed by a top traction: the stress is uniform and both fractures stick. The first
+    full step reached the solution at the round-off of the stiff side's terms (2.4e-16
+    ‖diag(J) x‖), above the relative tolerance; the line search then stalled and the step
+    failed (exit 3) with every formulation. The stall there is now convergence."""
+    from poromech.scene.loading import scene_from_dict
+
+    c = 0.2828427
+    raw = {
+        "name": "contrast", "physics": "mechanics",
+        "geometry": {"domain": {"rectangle": [-1, -1, 1, 1]},
+                     "fractures": [{"name": "iface", "points": [[-1, 0], [1, 0]]},
+                                   {"name": "incl", "points": [[-c, -c], [c, c]]}]},
+        "mesh": {"size": 0.25, "fracture_size": 0.1}, "degree": 2,
+        "material": {"young": "where(y > 0, 1e10, 1e4)", "poisson": 0.25},
+        "contact": {"formulation": formulation, "friction": "coulomb",
+                    "friction_coefficient": 0.6},
+        "boundary_conditions": [{"boundary": "bottom", "displacement": [0, 0]},
+                                {"boundary": "left", "displacement": [0, None]},
+                                {"boundary": "right", "displacement": [0, None]},
+                                {"boundary": "top", "traction": [0, -1000]}],
+    }
+    summary = run_scene(scene_from_dict(raw), tmp_path)
+    assert summary["status"] == "converged", summary["solves"][-1]["reason"]
+    rows = list(csv.DictReader(open(tmp_path / "fractures.csv")))
+    want = {"iface": (-1000.0, 0.0), "incl": (-2000.0 / 3, 1000.0 / 3)}
+    for r in rows:
+        tn, tt = want[r["fracture"]]
+        assert float(r["traction_n"]) == pytest.approx(tn, rel=1e-5)
+        assert abs(float(r["traction_t"])) == pytest.approx(tt, rel=1e-5, abs=1e-5)
+        assert abs(float(r["jump_n"])) < 1e-14 and abs(float(r["jump_t"])) < 1e-14
+        assert r["state"] == "stick"
