@@ -248,6 +248,23 @@ def test_default_beta_far_stiffer_than_the_rock_at_a_fracture_is_reported(caplog
         assert ("times softer" in caplog.text) == warned
 
 
+def test_a_beta_outside_the_verified_range_is_reported():
+    """β_τ⁰ = 1e-4 E with θ = -1 converged on the inclined crack with 15 of its 26 sliding faces
+    called stick, and 1e8 E stalled at round-off, both without a word. Warned outside
+    0.1 E to 1e6 E; not the scene's 100 E, nor β_t under frictionless contact."""
+    cases = ((["contact.beta_t=1e6"], ["contact.beta_t = 1e+06 Pa is 0.0001 times"]),
+             (["contact.beta_n=1e18"], ["contact.beta_n = 1e+18 Pa is 1e+08 times",
+                                         "round-off grows with beta"]),
+             ([], []),
+             (["contact.friction=frictionless", "contact.beta_t=1e6"], []))
+    for sets, fragments in cases:
+        _, _, model = model_of("inclined_crack_slip", *sets)
+        said = [m for m in model.warnings if "docs/mechanics.md verifies" in m]
+        assert len(said) == (1 if fragments else 0), (sets, model.warnings)
+        for fragment in fragments:
+            assert fragment in said[0], said
+
+
 def face_beta_n(model, fm) -> float:
     """The mean of ``β_n h_σ`` over the fracture faces (Pa): ``β_n⁰`` where it is uniform."""
     from dolfinx import fem

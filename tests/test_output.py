@@ -155,3 +155,36 @@ def test_a_run_that_fails_before_its_first_output_step_writes_no_empty_index(tmp
                  "time.max_cuts=0"]) == 3
     assert list(out.glob("*.h5")) and not list(out.glob("*.xdmf"))
     assert json.loads((out / "summary.json").read_text())["status"].startswith("failed")
+
+
+def test_a_restart_keeps_the_rows_of_a_time_that_prints_rounded_up(tmp_path):
+    """Stopped after step 1 of 3 to 500 s, t = 166.66666666666666 s, which fractures.csv prints
+    as 166.666667 and the probe as 166.666666667, both above it: the restart cut those rows as
+    later than the restart time, and the tables lost the step without a word."""
+    from poromech import stepping
+    from poromech.run import Run, run_scene
+    from poromech.scene.loading import load_scene
+
+    scene = load_scene(SCENE, ["time.steps=3", "output.xdmf=false",
+                               "probes=[{name: diag, start: [0.1, 0.1], end: [1.9, 0.9], "
+                               "samples: 7}]"])
+    run_scene(scene, tmp_path / "full")
+
+    def stop_after_first_step(physics):
+        accept = physics.accept
+
+        def accept_and_signal(t):
+            accept(t)
+            signal.raise_signal(signal.SIGTERM)
+
+        physics.accept = accept_and_signal
+
+    with Run(scene, tmp_path / "part", prepare=stop_after_first_step) as run, \
+            pytest.raises(stepping.Interrupted):
+        run.execute()
+    rows = (tmp_path / "part" / "fractures.csv").read_text().splitlines()
+    assert rows[-1].startswith("166.666667,")
+    run_scene(scene, tmp_path / "part", restart=True)
+    for name in ("fractures.csv", "probe_diag.csv"):
+        full, part = ((tmp_path / d / name).read_text() for d in ("full", "part"))
+        assert part == full, name

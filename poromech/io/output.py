@@ -46,6 +46,8 @@ __all__ = [
     "write_summary",
 ]
 
+#: The format of the time column of ``fractures.csv``.
+TIME_FORMAT = ".9g"
 #: The columns every ``fractures.csv`` starts with (a coupled run adds ``p_f`` and ``aperture``).
 CSV_COLUMNS = ("time", "fracture", "s", "x", "y", "jump_n", "jump_t", "traction_n", "traction_t",
                "state")
@@ -227,8 +229,8 @@ class FractureTable:
         w = csv.writer(buf, lineterminator="\n")
         state = [i for i, c in enumerate(self.columns) if c == "state"]
         for r in rows:
-            cells = [f"{t:.9g}", names[int(r[1])], f"{r[2]:.9g}", f"{r[3]:.9g}", f"{r[4]:.9g}",
-                     *(f"{v:.9e}" for v in r[5:])]
+            cells = [f"{t:{TIME_FORMAT}}", names[int(r[1])], f"{r[2]:.9g}", f"{r[3]:.9g}",
+                     f"{r[4]:.9g}", *(f"{v:.9e}" for v in r[5:])]
             for i in state:
                 cells[i] = self.STATE_WORDS[int(r[i])]
             w.writerow(cells)
@@ -241,7 +243,8 @@ def _cut_after(path: Path, until: float) -> int:
     Rows are in time order, so the first row to cut is found by bisection on byte offsets (a
     few reads whatever the size). A row left incomplete by a killed run is cut too.
     """
-    limit = until * (1 + 1e-12)
+    # the time as the rows print it: 66.66666666666667 prints as 66.6666667, above it by 5e-10
+    limit = float(f"{until:{TIME_FORMAT}}")
     with open(path, "rb+") as fh:
         lo = len(fh.readline())
         hi = fh.seek(0, os.SEEK_END)

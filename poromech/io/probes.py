@@ -289,8 +289,10 @@ class ProbeTable:
         """The header, and the rows of an earlier run up to ``resume_until`` (rank 0)."""
         keep = ""
         if self._resume_until is not None and self.path.exists():
+            # the time as the rows print it (66.66666666666667 prints above it, 66.6666666667)
+            limit = float(f"{self._resume_until:.12g}")
             keep = "".join(line for line in self.path.read_text().splitlines(True)[1:]
-                           if float(line.split(",", 1)[0]) <= self._resume_until * (1 + 1e-12))
+                           if float(line.split(",", 1)[0]) <= limit)
         atomic_write_text(self.path, ",".join(header) + "\n" + keep)
 
     def write(self, t: float, columns: dict[str, Array | None]) -> None:

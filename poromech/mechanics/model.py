@@ -80,6 +80,11 @@ IMBALANCE_LIMIT = 1e-3
 #: in rock softer than the 1e11 Pa above it (nitsche P2, Coulomb): 11, 12, 29 Newton iterations
 #: at ratios 10, 33, 100, and no convergence at 1000.
 SOFT_CONTRAST = 30.0
+#: The range of ``β⁰/E_max`` over which docs/mechanics.md ("Robustness on stiff and extreme
+#: cases") verifies the Nitsche formulations; a given ``contact.beta_n`` or ``beta_t`` outside
+#: it is warned about. A user's inclined crack at β_τ⁰ = 1e-4 E (θ = -1) converged with 15 of
+#: its 26 sliding faces called stick; at 1e8 E its Newton stalled at round-off.
+BETA_RANGE = (0.1, 1e6)
 #: β_n⁰ below this fraction of the largest Young's modulus is reported for pointwise ``nitsche``
 #: with Coulomb friction in 3D. configs/network3d.yaml (P1, θ = -1): at β_n⁰ = 0.01 E the
 #: compression step crept (steps of about 0.011 for 80 iterations) and failed at every cut; at
@@ -283,6 +288,8 @@ class MechanicsModel:
             and c.beta_scaling == "local" else None
         if nitsche_like and self.beta_weight is None and (c.beta_n is None or c.beta_t is None):
             self._check_soft_fractures(young)
+        if nitsche_like:
+            self._check_beta_range()
         if c.theta == 1 and nitsche_like:
             self._check_symmetric_nitsche(young)
         if c.friction == "coulomb" and msh.topology.dim == 3 and c.theta != 0:
@@ -320,6 +327,25 @@ class MechanicsModel:
         """Log a warning of the scene (set-up or run) and keep it for ``summary.json``."""
         self.warnings.append(msg)
         log.warning(msg)
+
+    def _check_beta_range(self) -> None:
+        """Warn when a given β⁰ lies outside :data:`BETA_RANGE` times the largest modulus."""
+        c = self.scene.contact
+        low, high = BETA_RANGE
+        given = [("beta_n", c.beta_n)]
+        if c.friction != "frictionless":
+            given.append(("beta_t", c.beta_t))
+        for key, value in given:
+            if value is None or low * self.young_max <= value <= high * self.young_max:
+                continue
+            self.warn(f"contact.{key} = {value:.3g} Pa is {value / self.young_max:.2g} times the "
+                      f"largest Young's modulus ({self.young_max:.3g} Pa), outside the "
+                      f"{low:g}-{high:g} times that docs/mechanics.md verifies: "
+                      + ("below, the Nitsche terms hold contact and stick weakly, and the "
+                         "states can be wrong (an inclined crack at 1e-4 times, theta -1, "
+                         "called 15 of its 26 sliding faces stick)" if value < low * self.young_max
+                         else "above, the residual's round-off grows with beta and the "
+                         "Newton can stall above its tolerance"))
 
     def _check_small_beta(self) -> None:
         """Warn when β_n⁰ is below :data:`SMALL_BETA_COULOMB_3D` times the largest modulus.
