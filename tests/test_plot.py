@@ -263,3 +263,15 @@ def test_plot_of_a_damaged_run_is_refused_in_one_line(runs, tmp_path, capsys, na
                  "--backend", "matplotlib"]) == 2
     err = capsys.readouterr().err.strip()
     assert f"cannot plot {damaged}: " in err and fragment in err and "\n" not in err, err
+
+
+def test_colour_bar_labels_tell_their_ticks_apart():
+    """A fracture pressure of 10.42-10.54 MPa was labelled 10.4, 10.5, 10.5, 10.5, 10.5."""
+    from poromech.io.plot import bar_format
+
+    for lo, hi in ((10.42, 10.54), (0.0, 1.5e7), (-3.0, 3.0), (1.0, 1.0 + 1e-6), (2e5, 2.0001e5)):
+        fmt = bar_format(np.linspace(lo, hi, 11))
+        labels = [fmt % t for t in np.linspace(lo, hi, 5)]
+        assert len(set(labels)) == 5, (lo, hi, labels)
+    assert bar_format(np.linspace(0.0, 1.5e7, 11)) == "%.3g"  # no more digits than needed
+    assert bar_format([5.0, 5.0]) == "%.3g"
