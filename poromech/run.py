@@ -249,16 +249,18 @@ class Run:
         (summary.setdefault(section, {}) if section else summary)["solves"] = self.records
         start, resume = 0, None
         summary["completed_steps"] = 0  # a run that fails its first step says so
-        if self.restart:
-            start, resume = self._restore()
-        else:
-            initial = physics.initialize()
-            if initial is not None:
-                summary["initial"] = initial
-        if self.outdir is not None:
-            physics.open_output(self.outdir, resume_until=resume)
-        self._write_summary()
+        # a signal during the initial state (an equilibrium under σ⁰ and p⁰ can take minutes)
+        # stops the run after it, with the outputs of t = 0 and the summary written
         with stop_signals() as flag:
+            if self.restart:
+                start, resume = self._restore()
+            else:
+                initial = physics.initialize()
+                if initial is not None:
+                    summary["initial"] = initial
+            if self.outdir is not None:
+                physics.open_output(self.outdir, resume_until=resume)
+            self._write_summary()
             run_steps(physics, scene, self.comm, self.records, self._after_step, start=start,
                       write_initial=not self.restart and scene.time is not None
                       and physics.writes_initial_state, stop=flag)

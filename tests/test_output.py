@@ -188,3 +188,42 @@ def test_a_restart_keeps_the_rows_of_a_time_that_prints_rounded_up(tmp_path):
     for name in ("fractures.csv", "probe_diag.csv"):
         full, part = ((tmp_path / d / name).read_text() for d in ("full", "part"))
         assert part == full, name
+
+
+def test_a_signal_during_the_initial_state_stops_after_it(tmp_path):
+    """SIGTERM while the initial equilibrium under p⁰ is solved: the run died at once with
+    nothing written (no summary.json). It now stops after the initial state, with the outputs
+    of t = 0 and an 'interrupted' summary of 0 completed steps. (In a child process: before the
+    fix the signal killed it.)"""
+    out = tmp_path / "run"
+    code = textwrap.dedent(f"""
+        import signal
+        from poromech import stepping
+        from poromech.run import Run
+        from poromech.scene.loading import load_scene
+
+        scene = load_scene({str(ROOT / "configs" / "fault_reactivation.yaml")!r},
+                           ["time.steps=4"])
+
+        def signal_in_initialize(physics):
+            initialize = physics.initialize
+
+            def initialize_and_signal():
+                signal.raise_signal(signal.SIGTERM)  # heard while the initial state is solved
+                return initialize()
+
+            physics.initialize = initialize_and_signal
+
+        try:
+            with Run(scene, {str(out)!r}, prepare=signal_in_initialize) as run:
+                run.execute()
+        except stepping.Interrupted:
+            print("interrupted")
+    """)
+    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True,
+                          text=True, timeout=600)
+    assert proc.returncode == 0 and "interrupted" in proc.stdout, (proc.returncode, proc.stderr)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"].startswith("interrupted") and summary["completed_steps"] == 0
+    assert summary["initial"]["reason"].startswith("CONVERGED")
+    assert read_series(out, "displacement").times == [0.0]
