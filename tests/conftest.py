@@ -52,6 +52,27 @@ def run_parallel(code: str, nprocs: int = 2, timeout: float = 600.0) -> dict:
     return json.loads(lines[-1])
 
 
+def sigterm_after_steps(steps: int):
+    """A ``Run`` ``prepare`` hook: SIGTERM raised after the physics accepts its ``steps``-th step.
+
+    The run's handler takes it and stops at the next step boundary (``stepping.Interrupted``).
+    """
+    import signal
+
+    def prepare(physics):
+        accept, accepted = physics.accept, []
+
+        def accept_and_signal(t):
+            accept(t)
+            accepted.append(t)
+            if len(accepted) == steps:
+                signal.raise_signal(signal.SIGTERM)
+
+        physics.accept = accept_and_signal
+
+    return prepare
+
+
 def network_geometry() -> dict:
     """A network with every kind of fracture end: tips, a corner, a T, an X, the boundary."""
     return {

@@ -1,11 +1,9 @@
 """The condensed solve of ``mixed`` (poromech/mechanics/condensed.py): the face problem is the
 assembled one, and the condensed solution is the regular Newton's."""
 
-import signal
-
 import numpy as np
 import pytest
-from conftest import ROOT
+from conftest import ROOT, sigterm_after_steps
 from mpi4py import MPI
 
 import poromech.mechanics.condensed as condensed
@@ -182,18 +180,7 @@ def test_a_restart_repeats_the_condensed_solves_bit_for_bit(tmp_path):
     scene = mixed_scene("fault_reactivation", "time.final=12000", "time.steps=12")
     full = run_scene(scene, tmp_path / "full")
 
-    def stop_after_fourth_step(physics):
-        accept, accepted = physics.accept, []
-
-        def accept_and_signal(t):
-            accept(t)
-            accepted.append(t)
-            if len(accepted) == 4:
-                signal.raise_signal(signal.SIGTERM)
-
-        physics.accept = accept_and_signal
-
-    with Run(scene, tmp_path / "part", prepare=stop_after_fourth_step) as run, \
+    with Run(scene, tmp_path / "part", prepare=sigterm_after_steps(4)) as run, \
             pytest.raises(stepping.Interrupted):
         run.execute()
     resumed = run_scene(scene, tmp_path / "part", restart=True)

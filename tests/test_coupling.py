@@ -10,7 +10,7 @@ import sys
 
 import numpy as np
 import pytest
-from conftest import ROOT, mpirun
+from conftest import ROOT, mpirun, sigterm_after_steps
 from mpi4py import MPI
 from petsc4py import PETSc
 
@@ -208,19 +208,8 @@ def test_restart_reproduces_the_uninterrupted_run(tmp_path):
     scene = load_scene(TERZAGHI, ["time.steps=4"])
     full = run_scene(scene, tmp_path / "full")
 
-    def terminate_after_second_step(physics):
-        accept, accepted = physics.accept, []
-
-        def accept_and_signal(t):
-            accept(t)
-            accepted.append(t)
-            if len(accepted) == 2:
-                signal.raise_signal(signal.SIGTERM)
-
-        physics.accept = accept_and_signal
-
     part = tmp_path / "part"
-    with Run(scene, part, prepare=terminate_after_second_step) as run, \
+    with Run(scene, part, prepare=sigterm_after_steps(2)) as run, \
             pytest.raises(stepping.Interrupted) as stop:
         run.execute()
     assert stop.value.signum == signal.SIGTERM

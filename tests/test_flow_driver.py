@@ -5,7 +5,7 @@ import re
 
 import numpy as np
 import pytest
-from conftest import ROOT, network_geometry
+from conftest import ROOT, network_geometry, sigterm_after_steps
 from mpi4py import MPI
 from petsc4py import PETSc
 
@@ -343,7 +343,6 @@ def test_auto_hands_a_failed_krylov_solve_to_mumps(tmp_path, caplog):
 def test_a_restart_keeps_the_switch_to_mumps(tmp_path, caplog):
     """A run that ``auto`` switched to MUMPS, stopped after its first step and continued, goes
     on with MUMPS from the checkpoint (said so) and writes the uninterrupted run's pressures."""
-    import signal
 
     from poromech import stepping
 
@@ -353,17 +352,8 @@ def test_a_restart_keeps_the_switch_to_mumps(tmp_path, caplog):
     full = run_scene(scene, tmp_path / "full", comm)
     assert full["flow"]["solver"]["fallback"] == "direct"
 
-    def terminate_after_first_step(physics):
-        accept = physics.accept
-
-        def accept_and_signal(t):
-            accept(t)
-            signal.raise_signal(signal.SIGTERM)
-
-        physics.accept = accept_and_signal
-
     part = tmp_path / "part"
-    with Run(scene, part, comm, prepare=terminate_after_first_step) as stopped, \
+    with Run(scene, part, comm, prepare=sigterm_after_steps(1)) as stopped, \
             pytest.raises(stepping.Interrupted):
         stopped.execute()
     caplog.clear()

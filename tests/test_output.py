@@ -13,7 +13,7 @@ import h5py
 import meshio
 import numpy as np
 import pytest
-from conftest import ROOT
+from conftest import ROOT, sigterm_after_steps
 
 from poromech.io.xdmf import read_series
 
@@ -170,16 +170,7 @@ def test_a_restart_keeps_the_rows_of_a_time_that_prints_rounded_up(tmp_path):
                                "samples: 7}]"])
     run_scene(scene, tmp_path / "full")
 
-    def stop_after_first_step(physics):
-        accept = physics.accept
-
-        def accept_and_signal(t):
-            accept(t)
-            signal.raise_signal(signal.SIGTERM)
-
-        physics.accept = accept_and_signal
-
-    with Run(scene, tmp_path / "part", prepare=stop_after_first_step) as run, \
+    with Run(scene, tmp_path / "part", prepare=sigterm_after_steps(1)) as run, \
             pytest.raises(stepping.Interrupted):
         run.execute()
     rows = (tmp_path / "part" / "fractures.csv").read_text().splitlines()

@@ -3,13 +3,12 @@ against the series, the Mandel–Cryer effect), an injected disc fracture that o
 (mass conservation, contact states), restart after an interruption and 1 rank vs 2 ranks."""
 
 import json
-import signal
 import subprocess
 import sys
 
 import numpy as np
 import pytest
-from conftest import ROOT, mpirun
+from conftest import ROOT, mpirun, sigterm_after_steps
 from test_coupling import assert_same_fixed_point
 
 from poromech import stepping
@@ -152,19 +151,8 @@ def test_restart_reproduces_the_uninterrupted_run_3d(tmp_path, darcy):
                                      f"flow.linear_solver={darcy}"])
     full = run_scene(scene, tmp_path / "full")
 
-    def terminate_after_second_step(physics):
-        accept, accepted = physics.accept, []
-
-        def accept_and_signal(t):
-            accept(t)
-            accepted.append(t)
-            if len(accepted) == 2:
-                signal.raise_signal(signal.SIGTERM)
-
-        physics.accept = accept_and_signal
-
     part = tmp_path / "part"
-    with Run(scene, part, prepare=terminate_after_second_step) as run_, \
+    with Run(scene, part, prepare=sigterm_after_steps(2)) as run_, \
             pytest.raises(stepping.Interrupted):
         run_.execute()
     summary = json.loads((part / "summary.json").read_text())
