@@ -21,6 +21,21 @@ comm = MPI.COMM_WORLD
 SIZES = (0.2, 0.1, 0.05)
 
 
+
+def last_flow_solve_on_two_ranks(raw: dict, outdir, key: str) -> dict:
+    """Entry ``key`` of the last flow solve's record of scene ``raw`` run on 2 ranks."""
+    code = f"""
+    import json
+    import dolfinx_solver
+    from mpi4py import MPI
+    from poromech.run import run_scene
+    from poromech.scene.loading import scene_from_dict
+    s = run_scene(scene_from_dict({json.dumps(raw)}), {str(outdir)!r}, MPI.COMM_WORLD)
+    if MPI.COMM_WORLD.rank == 0:
+        print(json.dumps(s["flow"]["solves"][-1][{key!r}]))
+    """
+    return run_parallel(code)
+
 def rect(name, corners):
     return Fracture3D.polygon(name, corners)
 
@@ -201,18 +216,7 @@ def test_scene_with_partial_boundaries(tmp_path):
     assert bnd["left"]["total"] < -0.25e-7  # the inflow 1e-7 m/s over z < 0.25, and more
     assert bnd["right"]["total"] == pytest.approx(-bnd["left"]["total"], rel=1e-8)
     assert summary["flow"]["flux_unit"].startswith("m^3/s")
-    code = f"""
-    import json
-    import dolfinx_solver
-    from mpi4py import MPI
-    from poromech.run import run_scene
-    from poromech.scene.loading import scene_from_dict
-    s = run_scene(scene_from_dict({json.dumps(SCENE)}), {str(tmp_path / "two")!r},
-                  MPI.COMM_WORLD)
-    if MPI.COMM_WORLD.rank == 0:
-        print(json.dumps(s["flow"]["solves"][-1]["boundary_fluxes"]))
-    """
-    two = run_parallel(code)
+    two = last_flow_solve_on_two_ranks(SCENE, tmp_path / "two", "boundary_fluxes")
     assert two["right"]["total"] == pytest.approx(bnd["right"]["total"], rel=1e-6)
     one = (tmp_path / "one" / "probe_diag.csv").read_text().splitlines()
     assert one[0].startswith("time,arc_length,x,y,z,p_m")
@@ -405,16 +409,5 @@ def test_a_closed_flow_whose_storage_is_below_round_off_is_refused(tmp_path):
     balance = summary["flow"]["solves"][-1]["mass_balance"]
     assert balance["storage_rate"] == pytest.approx(1.0e-6, rel=1e-4)
     assert balance["outflow"] == pytest.approx(-1.0e-6, rel=1e-4)
-    code = f"""
-    import json
-    import dolfinx_solver
-    from mpi4py import MPI
-    from poromech.run import run_scene
-    from poromech.scene.loading import scene_from_dict
-    s = run_scene(scene_from_dict({json.dumps(CLOSED)}), {str(tmp_path / "two")!r},
-                  MPI.COMM_WORLD)
-    if MPI.COMM_WORLD.rank == 0:
-        print(json.dumps(s["flow"]["solves"][-1]["mass_balance"]))
-    """
-    two = run_parallel(code)
+    two = last_flow_solve_on_two_ranks(CLOSED, tmp_path / "two", "mass_balance")
     assert two["storage_rate"] == pytest.approx(balance["storage_rate"], rel=1e-4)
