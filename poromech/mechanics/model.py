@@ -335,17 +335,18 @@ class MechanicsModel:
         given = [("beta_n", c.beta_n)]
         if c.friction != "frictionless":
             given.append(("beta_t", c.beta_t))
+        below = ("below, the Nitsche terms hold contact and stick weakly, and the states can be "
+                 "wrong (an inclined crack at 1e-4 times, theta -1, called 15 of its 26 sliding "
+                 "faces stick)")
+        above = ("above, the residual's round-off grows with beta and the Newton can stall "
+                 "above its tolerance")
         for key, value in given:
             if value is None or low * self.young_max <= value <= high * self.young_max:
                 continue
             self.warn(f"contact.{key} = {value:.3g} Pa is {value / self.young_max:.2g} times the "
                       f"largest Young's modulus ({self.young_max:.3g} Pa), outside the "
                       f"{low:g}-{high:g} times that docs/mechanics.md verifies: "
-                      + ("below, the Nitsche terms hold contact and stick weakly, and the "
-                         "states can be wrong (an inclined crack at 1e-4 times, theta -1, "
-                         "called 15 of its 26 sliding faces stick)" if value < low * self.young_max
-                         else "above, the residual's round-off grows with beta and the "
-                         "Newton can stall above its tolerance"))
+                      f"{below if value < low * self.young_max else above}")
 
     def _check_small_beta(self) -> None:
         """Warn when β_n⁰ is below :data:`SMALL_BETA_COULOMB_3D` times the largest modulus.

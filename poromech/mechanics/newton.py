@@ -349,9 +349,10 @@ class SemiSmoothNewton:
         self._bc_gap = self.b.duplicate()  # x - g on the Dirichlet dofs (_dirichlet_exact)
         self._bc_gap.setAttr("_blocks", self._blocks)
         self._reaction_rows = self._dirichlet_rows()
-        #: ``‖R‖``, the residual's rows of the Dirichlet dofs before they are set: the
-        #: reactions, forces in balance that the round-off test also compares with.
-        self.reactions = 0.0
+        # this rank's ``Σ R_i²`` over the residual's rows of the Dirichlet dofs before they are
+        # set (the reactions, forces in balance): summed over the ranks only where the
+        # convergence test needs it (:attr:`reactions`), not at every residual
+        self._reactions_local = 0.0
         self._cache_reactions = 0.0
         self._previous_fnorm = np.inf  # the last residual norm the convergence test saw
         self.line_search = line_search
@@ -471,13 +472,13 @@ class SemiSmoothNewton:
             self._cache_x.axpy(1.0, x)
             if same:
                 self._cache_f.copy(b)
-                self.reactions = self._cache_reactions
+                self._reactions_local = self._cache_reactions
                 self.record.time_assembly += time.perf_counter() - t0
                 return
         self._assemble_residual(x, b)
         x.copy(self._cache_x)
         b.copy(self._cache_f)
-        self._cache_reactions = self.reactions
+        self._cache_reactions = self._reactions_local
         self._cache_valid = True
         self.record.residual_evaluations += 1
         self.record.time_assembly += time.perf_counter() - t0
@@ -500,7 +501,7 @@ class SemiSmoothNewton:
             apply_lifting(b, self.J, bcs=self._bcs_cols, x0=x, alpha=-1.0)
         dolfinx.la.petsc._ghost_update(b, PETSc.InsertMode.ADD, PETSc.ScatterMode.REVERSE)
         owned = b.getArray(readonly=True)[self._reaction_rows]
-        self.reactions = float(np.sqrt(self.comm.allreduce(float(owned @ owned))))
+        self._reactions_local = float(owned @ owned)
         set_bc(b, self._bcs_rows, x0=x, alpha=-1.0)
         dolfinx.la.petsc._ghost_update(b, PETSc.InsertMode.INSERT, PETSc.ScatterMode.FORWARD)
 
@@ -727,24 +728,33 @@ class SemiSmoothNewton:
             return R.DIVERGED_MAX_IT
         return R.ITERATING
 
+    @property
+    def reactions(self) -> float:
+        """``‖R‖`` over the Dirichlet rows of the last residual: the reactions (collective)."""
+        return float(np.sqrt(self.comm.allreduce(self._reactions_local)))
+
     def _stiff_terms(self, x: PETSc.Vec) -> float:
         """``‖diag(J) x‖`` with the last assembled Jacobian, the size of the residual's terms."""
         if not self._jacobian_assembled:
             return 0.0
-        if self._forces_work is None:
-            self._forces_work = self.b.duplicate()
-        self.A.getDiagonal(self._forces_work)
-        self._forces_work.pointwiseMult(self._forces_work, x)
-        return self._forces_work.norm()
+        work = self._work()
+        self.A.getDiagonal(work)
+        work.pointwiseMult(work, x)
+        return work.norm()
 
     def _forces(self, x: PETSc.Vec) -> float:
         """``‖J x‖`` with the last assembled Jacobian, the size of the forces in balance."""
         if not self._jacobian_assembled:
             return 0.0
+        work = self._work()
+        self.A.mult(x, work)
+        return work.norm()
+
+    def _work(self) -> PETSc.Vec:
+        """A work vector of the residual's layout (created at the first use)."""
         if self._forces_work is None:
             self._forces_work = self.b.duplicate()
-        self.A.mult(x, self._forces_work)
-        return self._forces_work.norm()
+        return self._forces_work
 
     def _monitor(self, snes, it, fnorm) -> None:
         self.record.residuals.append(float(fnorm))
