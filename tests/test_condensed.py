@@ -125,15 +125,24 @@ def test_a_face_newton_that_fails_leaves_the_solve_to_the_regular_newton(monkeyp
         assert np.array_equal(a, b)
 
 
-@pytest.mark.parametrize("overrides", [["degree=1"], ["contact.formulation=stabilized_mixed"],
-                                       ["solver.petsc={ksp_type: gmres, pc_type: gamg}"]])
-def test_condensation_is_used_only_where_it_applies(overrides):
+@pytest.mark.parametrize("overrides, said", [
+    (["degree=1"], None), (["contact.formulation=stabilized_mixed"], None),
+    (["solver.petsc={ksp_type: gmres, pc_type: gamg}"], "the mechanics solver is gmres + gamg"),
+    (["solver.petsc={pc_factor_mat_solver_type: superlu_dist}"],
+     "the mechanics solver is superlu_dist")])
+def test_condensation_is_used_only_where_it_applies(overrides, said, caplog):
     """Not with P1 (singular face problem), not for other formulations, not with an iterative
-    mechanics solver."""
-    sim = physics("six_fractures_mechanics", "time.steps=1", *overrides)
+    mechanics solver or another factorization than MUMPS', which forms the face problem: those
+    two are said in the log (the scene chose them; the formulation asked for the condensation)."""
+    with caplog.at_level("INFO", logger="poromech"):
+        sim = physics("six_fractures_mechanics", "time.steps=1", *overrides)
     assert sim.solver.condensed is None
     assert sim.describe()["condensed"] is None
     sim.close()
+    lines = [r.getMessage() for r in caplog.records if "not condensed" in r.getMessage()]
+    assert lines == ([] if said is None else [
+        "the mixed contact problem is not condensed: its face problem is formed by a MUMPS "
+        f"factorization, and {said}"])
 
 
 def test_a_block_held_only_by_contact_is_solved_without_condensation(caplog):

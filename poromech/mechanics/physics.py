@@ -349,8 +349,15 @@ class MechanicsPhysics:
             return None
         if not (scene.solver.condensation and m.lam is not None
                 and applicable(m.params.formulation, scene.degree, scene.contact.friction)
-                and self.solver.states_determine_jacobian and is_direct(ksp)
-                and ksp.getPC().getFactorSolverType() == "mumps"):
+                and self.solver.states_determine_jacobian):
+            return None
+        if not (is_direct(ksp) and ksp.getPC().getFactorSolverType() == "mumps"):
+            # the face Schur complement is MUMPS' (ICNTL 19): a scene that chose another
+            # solver, e.g. SuperLU_DIST for bitwise repeatable runs, is told what it gives up
+            solver = (ksp.getPC().getFactorSolverType() if is_direct(ksp)
+                      else f"{ksp.getType()} + {ksp.getPC().getType()}")
+            log.info("the mixed contact problem is not condensed: its face problem is formed by "
+                     "a MUMPS factorization, and the mechanics solver is %s", solver)
             return None
         V = m.lam.function_space
         n = V.dofmap.index_map.size_global * V.dofmap.index_map_bs
