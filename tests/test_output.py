@@ -1,6 +1,7 @@
 """Crash-safe output: a killed, interrupted or disk-full run leaves readable files for every
 completed step, a valid summary.json, and can be continued with ``--restart``."""
 
+import csv
 import json
 import os
 import signal
@@ -218,3 +219,34 @@ def test_a_signal_during_the_initial_state_stops_after_it(tmp_path):
     assert summary["status"].startswith("interrupted") and summary["completed_steps"] == 0
     assert summary["initial"]["reason"].startswith("CONVERGED")
     assert read_series(out, "displacement").times == [0.0]
+
+
+def test_face_coordinates_far_from_the_origin_keep_their_resolution(tmp_path):
+    """A scene moved to UTM coordinates (y = 4e6 m) writes the same face midpoints, shifted, to
+    1e-6 m: with 9 digits its 1 m box printed them to 1 mm (0.1 m at this offset's decade) and
+    faces shared values. At the origin the columns keep their 9 digits."""
+    from conftest import mechanics_scene, network_geometry
+
+    from poromech.run import Run
+    from poromech.scene.loading import scene_from_dict
+
+    shift = np.array([500000.0, 4000000.0])
+    tables = []
+    for name, d in (("origin", np.zeros(2)), ("utm", shift)):
+        geometry = network_geometry()
+        x0, y0, x1, y1 = geometry["domain"]["rectangle"]
+        geometry["domain"]["rectangle"] = [x0 + d[0], y0 + d[1], x1 + d[0], y1 + d[1]]
+        for f in geometry["fractures"]:
+            f["points"] = [[p[0] + d[0], p[1] + d[1]] for p in f["points"]]
+        raw = mechanics_scene(geometry=geometry, degree=1, time={"final": 1.0, "steps": 1},
+                              output={"xdmf": False}, mesh={"size": 0.2, "fracture_size": 0.1})
+        with Run(scene_from_dict(raw), tmp_path / name) as run:
+            run.execute()
+        with open(tmp_path / name / "fractures.csv") as fh:
+            rows = list(csv.reader(fh))[1:]
+        tables.append((rows, np.array([[float(r[3]), float(r[4])] for r in rows])))
+    (rows0, xy0), (rows1, xy1) = tables
+    assert len(rows0) == len(rows1) > 20
+    assert np.abs(xy1 - shift - xy0).max() <= 1e-6
+    assert len({(r[3], r[4]) for r in rows1}) == len(rows1)
+    assert max(len(r[3].replace(".", "").lstrip("0")) for r in rows0) <= 9
