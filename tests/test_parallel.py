@@ -79,3 +79,44 @@ def test_a_library_that_exits_on_rank_0_raises_on_every_rank():
     from poromech.parallel import on_root
     with pytest.raises(RuntimeError, match=r"exit exited \(status 3\)"):
         on_root(MPI.COMM_WORLD, sys.exit, 3)
+
+
+CHECKPOINT_CODE = """
+import json
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import poromech
+from mpi4py import MPI
+
+from poromech.io.checkpoint import load_checkpoint, save_checkpoint
+
+comm = MPI.COMM_WORLD
+n = 1000
+# rank r writes the rows r, r + p, r + 2p, ... and asks for the others, scattered over all rows
+mine = np.arange(comm.rank, n, comm.size)
+values = np.column_stack([mine, -mine]).astype(np.float64)
+out = Path(comm.bcast(tempfile.mkdtemp() if comm.rank == 0 else None))
+save_checkpoint(comm, out, {"step": 1}, {"rows": (mine, values)})
+meta, arrays = load_checkpoint(comm, out)
+want = np.arange((comm.rank + 1) % comm.size, n, comm.size)[::-1].reshape(-1, 2)
+got = arrays["rows"][want]
+ok = bool(np.array_equal(got[..., 0], want) and np.array_equal(got[..., 1], -want))
+result = {"ok": comm.allreduce(ok, op=MPI.LAND), "meta": meta,
+          "read": comm.gather(arrays["rows"].rows_read)}
+comm.barrier()
+if comm.rank == 0:
+    shutil.rmtree(out)
+    print(json.dumps(result))
+"""
+
+
+def test_a_checkpoint_is_read_by_blocks_of_rows():
+    """Each of 2 ranks reads half the rows of a checkpoint array and gets the rows it asks for,
+    scattered over the whole array, from the other rank: before, each read the span of its
+    rows, all of them."""
+    result = run_parallel(CHECKPOINT_CODE)
+    assert result["ok"] and result["meta"] == {"step": 1}
+    assert result["read"] == [500, 500]

@@ -75,8 +75,7 @@ class FlowState:
         cells = input_cells(fm.msh)
         p = pb.p.copy()
         p[d.cell] = arrays["p_cell"][cells]
-        if len(d.fracture):
-            p[d.fracture] = arrays["p_fracture"][fm.fractures.index]
+        p[d.fracture] = arrays["p_fracture"][fm.fractures.index]  # collective: on every rank
         pb.set_unknowns(p)
         if "porosity" in arrays:
             self.porosity = arrays["porosity"][cells]

@@ -8,7 +8,8 @@ generated again, identically, from the scene stored next to the outputs).
 
 Every rank writes its own rows (:func:`poromech.io.mpiio.write_h5`) into a temporary file that
 rank 0 renames when complete, so a killed run keeps the checkpoint of its last completed step.
-On restart every rank reads only the rows it needs (:class:`StoredRows`). (``adios4dolfinx``,
+On restart each rank reads a block of ``1/p`` of the rows and receives the rows it needs from
+the ranks that read them (:class:`StoredRows`). (``adios4dolfinx``,
 the FEniCSx checkpoint library, does not install with the pinned stack — it requires a
 ``fenics-dolfinx`` distribution and the ``adios2`` Python bindings, neither of which the
 ``dolfinx-solver-real`` wheel provides — and it stores functions on standard dofmaps, not on the
@@ -28,7 +29,7 @@ import numpy.typing as npt
 from dolfinx import fem
 from mpi4py import MPI
 
-from poromech.io.mpiio import Rows, write_h5
+from poromech.io.mpiio import Rows, block_owner, exchange, reply, write_h5
 from poromech.mesh.entities import input_cells
 from poromech.mesh.fractured import FracturedMesh
 from poromech.physics import Keyed
@@ -65,32 +66,45 @@ def save_checkpoint(comm: MPI.Comm, outdir: Path, meta: dict, arrays: dict[str, 
 
 
 class StoredRows:
-    """An array of a checkpoint read by rows on demand: ``rows[keys]`` reads only those rows.
+    """An array of a checkpoint read by rows on demand: ``rows[keys]`` (collective).
+
+    Each rank reads one contiguous block of the rows, ``1/p`` of them
+    (:func:`~poromech.io.mpiio.block_owner`), and the rows each rank asks for are sent to it
+    from the blocks that hold them (:func:`~poromech.io.mpiio.exchange`). A rank's cells are
+    scattered over the input numbering, so a read of the span of its own rows was a read of
+    the whole array on every rank: on 64 ranks each would read 99 % of the rows for the 1.6 %
+    it needs.
 
     Args:
         path: The checkpoint file.
         name: The dataset.
+        comm: The ranks that read it together.
     """
 
-    #: Rows between two wanted ones still read in one piece rather than in two.
-    GAP = 4096
-
-    def __init__(self, path: Path, name: str):
-        self.path, self.name = Path(path), name
+    def __init__(self, path: Path, name: str, comm: MPI.Comm):
+        self.path, self.name, self.comm = Path(path), name, comm
+        #: Rows this rank read from the file at the last access.
+        self.rows_read = 0
 
     def __getitem__(self, index) -> np.ndarray:
-        """The rows ``index`` (an integer or an integer array of any shape)."""
+        """The rows ``index`` (an integer or an integer array of any shape), on every rank."""
+        comm = self.comm
         index = np.asarray(index, dtype=np.int64)
         ids, inverse = np.unique(index.ravel(), return_inverse=True)
         with h5py.File(self.path, "r") as f:
             dset = f[self.name]
-            out = np.empty((len(ids), *dset.shape[1:]), dtype=dset.dtype)
-            cut = np.flatnonzero(np.diff(ids) > self.GAP) + 1
-            for a, b in zip(np.r_[0, cut], np.r_[cut, len(ids)], strict=True):
-                if b > a:
-                    lo = int(ids[a])
-                    out[a:b] = dset[lo:int(ids[b - 1]) + 1][ids[a:b] - lo]
-        return out[inverse].reshape(index.shape + out.shape[1:])
+            n, shape = dset.shape[0], dset.shape[1:]
+            outside = bool(len(ids)) and (ids[0] < 0 or ids[-1] >= n)
+            if comm.allreduce(outside, op=MPI.LOR):
+                raise CheckpointError(f"{self.path}: dataset {self.name} has {n} rows, fewer "
+                                      "than this mesh needs (a checkpoint of another run)")
+            lo, hi = (n * comm.rank) // comm.size, (n * (comm.rank + 1)) // comm.size
+            block = dset[lo:hi]
+        self.rows_read = hi - lo
+        owner = block_owner(ids, n, comm.size)
+        asked, counts = exchange(comm, owner, ids)
+        rows = reply(comm, block[asked - lo], counts, owner)
+        return rows[inverse].reshape(index.shape + shape)
 
 
 class CheckpointError(ValueError):
@@ -113,10 +127,10 @@ def read_checkpoint_meta(path: Path) -> tuple[dict, list[str]]:
 
 
 def load_checkpoint(comm: MPI.Comm, outdir: Path) -> tuple[dict, dict[str, StoredRows]]:
-    """The metadata and the arrays of a checkpoint, read by rows on demand (on every rank)."""
+    """The metadata and the arrays of a checkpoint, read by rows on demand (collective)."""
     path = Path(outdir) / CHECKPOINT
     meta, names = read_checkpoint_meta(path)
-    return meta, {k: StoredRows(path, k) for k in names}
+    return meta, {k: StoredRows(path, k, comm) for k in names}
 
 
 def scalar_row(comm: MPI.Comm, value: float) -> Keyed:

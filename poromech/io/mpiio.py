@@ -55,6 +55,7 @@ __all__ = [
     "block_owner",
     "exchange",
     "rank_keys",
+    "reply",
     "write_h5",
     "write_ordered",
 ]
@@ -135,7 +136,7 @@ def exchange(comm: MPI.Comm, dest: npt.NDArray[np.integer],
     return recv, recv_counts
 
 
-def _reply(comm: MPI.Comm, values: npt.NDArray, recv_counts: npt.NDArray[np.int64],
+def reply(comm: MPI.Comm, values: npt.NDArray, recv_counts: npt.NDArray[np.int64],
            dest: npt.NDArray[np.integer]) -> npt.NDArray:
     """Send the answers to rows received by :func:`exchange` back, in the senders' order."""
     back, _ = exchange(comm, np.repeat(np.arange(comm.size), recv_counts), values)
@@ -176,7 +177,7 @@ def rank_keys(comm: MPI.Comm,
     uniq, inverse = np.unique(got, return_inverse=True)
     first = comm.exscan(len(uniq)) or 0
     total = comm.allreduce(len(uniq))
-    return _reply(comm, first + inverse.astype(np.int64), counts, dest), int(total)
+    return reply(comm, first + inverse.astype(np.int64), counts, dest), int(total)
 
 
 # -- errors ----------------------------------------------------------------------------------
