@@ -82,7 +82,8 @@ def build_mesh(scene: Scene, comm: MPI.Comm, owner=None) -> FracturedMesh:
         owner: Optional rank of every input cell (an array on rank 0, or a callable of the cell
             centroids), to impose a partition (tests that put a process boundary on a fracture).
 
-    A failure of gmsh or of the mesh file on rank 0 is raised on every rank.
+    A failure of gmsh or of the mesh file on rank 0 is raised on every rank. A flow-only scene
+    gets no cracked topology (it has no displacement space).
     """
     geo = scene_geometry(scene)
 
@@ -97,7 +98,7 @@ def build_mesh(scene: Scene, comm: MPI.Comm, owner=None) -> FracturedMesh:
             return generate_mesh_3d(geo, mesh_sizes(scene))
         return generate_mesh(geo, mesh_sizes(scene))
 
-    return distribute_mesh(comm, geo, arrays, owner)
+    return distribute_mesh(comm, geo, arrays, owner, crack=scene.physics != "flow")
 
 
 #: A 3D fracture meshed with fewer faces than this is said to be under-resolved (a warning): a

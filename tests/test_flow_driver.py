@@ -366,3 +366,22 @@ def test_a_restart_keeps_the_switch_to_mumps(tmp_path, caplog):
     pa = np.array([float(r[4]) for r in a if r[0] == "20"])
     pb = np.array([float(r[4]) for r in b if r[0] == "20"])
     assert len(pa) == 81 and np.allclose(pa, pb, rtol=1e-12, atol=0.0)
+
+
+def test_a_flow_scene_builds_no_cracked_topology():
+    """A flow-only scene has no displacement space: its mesh skips the cracked topology and the
+    pieces of the body (work on rank 0 that grows with the mesh), and a displacement space asked
+    of it is refused in one line; a mechanics scene on the same geometry has both."""
+    from poromech.mesh.fractured import cracked_space
+
+    raw = flow_scene()
+    flow = build_mesh(scene_from_dict(raw), comm)
+    assert flow.cracked is None and flow.cracked_cells is None and flow.pieces == ()
+    with pytest.raises(ValueError, match="built without its cracked topology"):
+        cracked_space(flow, 1)
+    raw.pop("flow")
+    raw.update(physics="mechanics", material={"young": 1.0e9, "poisson": 0.25},
+               boundary_conditions=[{"boundary": "bottom", "displacement": [0.0, 0.0]}])
+    mech = build_mesh(scene_from_dict(raw), comm)
+    assert mech.cracked is not None and len(mech.pieces) >= 1
+    assert mech.msh.topology.index_map(2).size_global == flow.msh.topology.index_map(2).size_global

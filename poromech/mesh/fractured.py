@@ -119,9 +119,11 @@ class FracturedMesh:
     Attributes:
         msh: The connected mesh (ghosted by shared facet).
         geometry: The geometry it was built from (plane or box).
-        cracked: Topology with duplicated fracture vertices (same local cells as ``msh``).
+        cracked: Topology with duplicated fracture vertices (same local cells as ``msh``); None
+            for a mesh built without it (a flow-only scene: :func:`create_fractured_mesh`).
         cracked_cells: Cracked (duplicated) global vertex ids of the local cells, in the vertex
-            order of ``msh`` (owned then ghost cells), ``(num_local_cells, d + 1)``.
+            order of ``msh`` (owned then ghost cells), ``(num_local_cells, d + 1)``; None
+            without the cracked topology.
         fractures: Owned fracture faces.
         fracture_facets_all: Owned and ghost fracture facets (local indices), for submeshes.
         boundary_facets: Owned boundary facets (local indices).
@@ -137,8 +139,8 @@ class FracturedMesh:
 
     msh: dolfinx.mesh.Mesh
     geometry: PlaneGeometry | BoxGeometry
-    cracked: _cpp.mesh.Topology
-    cracked_cells: npt.NDArray[np.int64]
+    cracked: _cpp.mesh.Topology | None
+    cracked_cells: npt.NDArray[np.int64] | None
     fractures: FractureFaces
     fracture_facets_all: npt.NDArray[np.int32]
     boundary_facets: npt.NDArray[np.int32]
@@ -265,6 +267,7 @@ def create_fractured_mesh(
     geometry: PlaneGeometry | BoxGeometry,
     arrays: MeshArrays | None,
     owner: npt.NDArray[np.int32] | None = None,
+    crack: bool = True,
 ) -> FracturedMesh:
     """Distribute a fractured mesh and build its cracked topology (collective).
 
@@ -273,23 +276,30 @@ def create_fractured_mesh(
         geometry: The plane geometry (on every rank).
         arrays: The mesh arrays on rank 0 (ignored on other ranks).
         owner: Optional rank of every input cell (rank 0 only), to impose a partition.
+        crack: Build the cracked topology of the displacement space and the pieces the
+            fractures cut the body into. A flow-only scene needs neither; they are work on
+            rank 0 that grows with the mesh (1.9 s of the 7.9 s that the 98k-cell mesh of
+            configs/flow3d_network.yaml at size 0.05 took to build, gmsh included, 1 rank).
 
     Returns:
         The fractured mesh.
     """
     root = comm.rank == 0
+    cracked_rows, pieces, unblocked = None, (), ()
     if root:
-        cracked_rows, _ = crack_vertices(arrays.cells, arrays.fracture_facets, len(arrays.x))
         face_data = (arrays.fracture_id, arrays.fracture_segment, arrays.fracture_s)
         shape = (arrays.cells.shape[1], arrays.x.shape[1])
-        labels = piece_labels(arrays.cells, arrays.fracture_facets)
-        pieces = body_pieces(arrays.cells, arrays.fracture_facets, arrays.boundary_facets,
-                             arrays.boundary_edge, labels)
-        unblocked = (unblocked_motions(arrays.cells, arrays.x, arrays.fracture_facets, labels)
-                     if len(pieces) > 1 else ())
+        if crack:
+            cracked_rows, _ = crack_vertices(arrays.cells, arrays.fracture_facets, len(arrays.x))
+            labels = piece_labels(arrays.cells, arrays.fracture_facets)
+            pieces = body_pieces(arrays.cells, arrays.fracture_facets, arrays.boundary_facets,
+                                 arrays.boundary_edge, labels)
+            unblocked = (unblocked_motions(arrays.cells, arrays.x, arrays.fracture_facets,
+                                           labels) if len(pieces) > 1 else ())
     else:
-        cracked_rows, face_data, shape, pieces, unblocked = None, None, None, None, None
-    pieces, unblocked = comm.bcast((pieces, unblocked), root=0)
+        face_data, shape = None, None
+    if crack:
+        pieces, unblocked = comm.bcast((pieces, unblocked), root=0)
     fid, fseg, fs = comm.bcast(face_data, root=0)
     nv, gdim = comm.bcast(shape, root=0)  # vertices per cell, coordinates per point
     if owner is not None or comm.size > 1:
@@ -311,9 +321,11 @@ def create_fractured_mesh(
     imap = msh.topology.index_map(tdim)
     orig = np.asarray(msh.topology.original_cell_index, dtype=np.int64)
     orig = orig[: imap.size_local + imap.num_ghosts]
-    cracked_local = _scatter_rows(comm, cracked_rows, orig)
-    orig_rows = _scatter_rows(comm, arrays.cells if root else None, orig)
-    cracked, cracked_cells = _cracked_topology(msh, cracked_local, orig_rows)
+    cracked, cracked_cells = None, None
+    if crack:
+        cracked_local = _scatter_rows(comm, cracked_rows, orig)
+        orig_rows = _scatter_rows(comm, arrays.cells if root else None, orig)
+        cracked, cracked_cells = _cracked_topology(msh, cracked_local, orig_rows)
 
     no_facets = np.empty((0, tdim), dtype=np.int64)
     ffacets = arrays.fracture_facets if root else no_facets
@@ -359,7 +371,8 @@ def _facet_sizes(msh, facets) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.f
 
 
 def distribute_mesh(comm: MPI.Comm, geometry: PlaneGeometry | BoxGeometry,
-                    make_arrays: Callable[[], MeshArrays], owner=None) -> FracturedMesh:
+                    make_arrays: Callable[[], MeshArrays], owner=None,
+                    crack: bool = True) -> FracturedMesh:
     """Make the mesh arrays on rank 0 (gmsh, a mesh file) and distribute them (collective).
 
     Args:
@@ -369,6 +382,7 @@ def distribute_mesh(comm: MPI.Comm, geometry: PlaneGeometry | BoxGeometry,
         owner: The rank of every input cell (an array given on rank 0), or a callable of the
             cell centroids ``(n, d)`` returning it, to impose a partition (tests that put a
             process boundary on a fracture); None: the default partitioner.
+        crack: Build the cracked topology (see :func:`create_fractured_mesh`).
     """
     arrays, ranks, err = None, None, None
     if comm.rank == 0:
@@ -380,7 +394,7 @@ def distribute_mesh(comm: MPI.Comm, geometry: PlaneGeometry | BoxGeometry,
     agree(comm, err)
     if ranks is not None:
         ranks = np.asarray(ranks, dtype=np.int32)
-    return create_fractured_mesh(comm, geometry, arrays, owner=ranks)
+    return create_fractured_mesh(comm, geometry, arrays, owner=ranks, crack=crack)
 
 
 def cracked_space(fm: FracturedMesh, degree: int, shape: tuple[int, ...] | None = None):
@@ -395,6 +409,9 @@ def cracked_space(fm: FracturedMesh, degree: int, shape: tuple[int, ...] | None 
         A :class:`dolfinx.fem.FunctionSpace` with the cracked dofmap.
     """
     msh = fm.msh
+    if fm.cracked is None:
+        raise ValueError("this mesh was built without its cracked topology (for a flow-only "
+                         "scene): build it with crack=True for a displacement space")
     shape = (msh.geometry.dim,) if shape is None else shape
     ufl_e = basix.ufl.element("Lagrange", msh.basix_cell(), degree, shape=shape,
                               dtype=msh.geometry.x.dtype)
