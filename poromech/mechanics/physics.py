@@ -22,13 +22,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from poromech.errors import ConfigError
-from poromech.io.checkpoint import (
-    cell_dof_rows,
-    face_dof_rows,
-    scalar_row,
-    set_cell_dof_rows,
-    set_face_dof_rows,
-)
+from poromech.io.checkpoint import NodeRows, face_dof_rows, scalar_row, set_face_dof_rows
 from poromech.io.output import FractureTable, displacement_mesh, fracture_mesh, owned_blocks
 from poromech.io.probes import open_probes
 from poromech.io.xdmf import XDMFSeries
@@ -219,6 +213,7 @@ class MechanicsPhysics:
     def __init__(self, scene: Scene, fm: FracturedMesh, timer: Timer,
                  pressures: PressureCoupling | None = None):
         self.scene, self.timer, self.fm = scene, timer, fm
+        self._numberings: dict[int, tuple] = {}  # _node_rows
         self.writes_initial_state = False
         self._held_by_friction = check_pieces(scene, fm)
         singular = scene.contact.formulation == "mixed" and scene.degree == 1
@@ -617,14 +612,21 @@ class MechanicsPhysics:
         V = f.function_space
         if m.submesh is not None and V.mesh is m.submesh:
             return face_dof_rows(self.fm, V, values, m.emap)
-        return cell_dof_rows(self.fm, V, values)
+        return self._node_rows(V).rows(values)
 
     def _set_rows(self, f, rows) -> None:
         m = self.model
         if m.submesh is not None and f.function_space.mesh is m.submesh:
             set_face_dof_rows(self.fm, f, m.emap, rows)
         else:
-            set_cell_dof_rows(self.fm, f, rows)
+            self._node_rows(f.function_space).set(f, rows)
+
+    def _node_rows(self, V) -> NodeRows:
+        """The partition-independent numbering of ``V``'s dof blocks, made once (collective)."""
+        key = id(V)
+        if key not in self._numberings:
+            self._numberings[key] = (V, NodeRows(self.fm, V))  # V kept: its id stays unique
+        return self._numberings[key][1]
 
     def state(self) -> dict[str, Keyed]:
         """Unknowns, slip reference and the predictor's previous step, partition-independent."""
@@ -703,7 +705,7 @@ class MechanicsPhysics:
         for f in m.unknowns:
             self._set_rows(f, arrays[f.name])
         if m.u_prev is not None:
-            set_cell_dof_rows(self.fm, m.u_prev, arrays["u_prev"])
+            self._set_rows(m.u_prev, arrays["u_prev"])
         self.solver.reference_norm = float(arrays["reference_norm"][0])
         self.predictor.restore(t, previous)
         for saved, f in zip(self._saved, m.unknowns, strict=True):
