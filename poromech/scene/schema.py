@@ -276,7 +276,8 @@ class Contact:
         default=0.5, metadata=doc("Coulomb friction coefficient F", "", min=0)
     )
     slip_bound: Expr | None = field(
-        default=None, metadata=doc("Tresca slip bound s (required for tresca)", "Pa", min=0)
+        default=None, metadata=doc("Tresca slip bound s (required for tresca): a number or an "
+                                 "expression in t, uniform in space", "Pa", min=0)
     )
     theta: float = field(
         default=-1.0,
