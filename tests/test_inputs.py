@@ -726,7 +726,11 @@ def test_mesh_zones_checked_before_meshing(caplog):
     # none, and a size not finer than the one already there
     raw = mechanics_scene(mesh={"size": 0.1, "zones": [{**zone, "center": [0.05, 0.05]}]})
     for change, said in (({"transition": 0.1}, "no fracture is within its radius and "
-                                               "transition (0.2 m) of its centre"),
+                                               "twice its transition (0.3 m) of its centre"),
+                         # 0.35 m from the bar and the stem, beyond radius + transition: the
+                         # ball's transition overlaps the band around them, and the mesh has 524
+                         # cells instead of 522; it was reported as without effect
+                         ({"transition": 0.2, "center": [0.15, 0.15]}, None),
                          ({}, None),  # the default transition, 0.4 m, reaches the fractures
                          ({"center": [0.5, 0.5], "size": 0.2}, "its size 0.2 m is not finer "
                                                                "than the 0.1 m the fractures"),

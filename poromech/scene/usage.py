@@ -247,11 +247,14 @@ def _zone_unused(scene: Scene, index: int, geo: PlaneGeometry) -> str | None:
         if zone.size >= around:
             return (f"its size {zone.size:g} m is not finer than the {around:g} m the fractures "
                     "have (mesh.fracture_size, else mesh.size)")
-        reach = zone.radius + (zone.transition or m.transition or 4 * m.size)
+        # the zone's field is the larger of its ball's (finer than mesh.size within radius +
+        # transition of the centre) and a band's (within transition of a fracture): it is
+        # finer somewhere only within radius + 2 transitions of a fracture
+        reach = zone.radius + 2 * (zone.transition or m.transition or 4 * m.size)
         if _distance_to_fractures(geo, np.asarray(zone.center, dtype=float)) >= reach:
-            return (f"no fracture is within its radius and transition ({reach:g} m) of its "
-                    "centre, and region fractures refines only the fractures there (region: "
-                    "ball refines the rock)")
+            return (f"no fracture is within its radius and twice its transition ({reach:g} m) "
+                    "of its centre, and region fractures refines only the fractures there and "
+                    "the rock within a transition of them (region: ball refines the rock)")
     elif zone.size >= m.size:
         return f"its size {zone.size:g} m is not finer than mesh.size {m.size:g} m"
     for other in range(len(m.zones)):
