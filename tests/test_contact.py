@@ -234,12 +234,17 @@ def test_beta_defaults_are_relative_to_the_largest_young_modulus():
 def test_default_beta_far_stiffer_than_the_rock_at_a_fracture_is_reported(caplog):
     """β⁰ defaults to multiples of the largest Young's modulus: a fracture in rock 1000 times
     softer stalled the Newton (100 iterations), silently. Warned from a ratio of 30 on, when a
-    β⁰ is left to its default; not for a homogeneous rock nor with β⁰ given."""
+    β⁰ is left to its default; not for a homogeneous rock nor with β⁰ given, nor for a crack
+    along an interface with the stiffest rock (it was, and the advised ``beta_scaling: local``,
+    which scales by the stiffer side, changed nothing)."""
     from poromech.mechanics.model import SOFT_CONTRAST
 
     soft = f"material.young=where(y > 1.5, 1e10, {1e10 / (1.5 * SOFT_CONTRAST)})"
+    interface = (f"material.young=where(x * cos(psi) - y * sin(psi) > 0, 1e10, "
+                 f"{1e10 / (1.5 * SOFT_CONTRAST)})")
     default = ["contact.beta_n=null", "contact.beta_t=null"]
-    for sets, warned in (([soft, *default], True), (default, False), ([soft], False)):
+    for sets, warned in (([soft, *default], True), (default, False), ([soft], False),
+                         ([interface, *default], False)):
         caplog.clear()
         with caplog.at_level("WARNING", logger="poromech"):
             _, _, model = model_of("inclined_crack_slip", *sets)
