@@ -252,10 +252,13 @@ def check_petsc_options(cli_options: Mapping[str, str], scene=None) -> None:
 
 
 def _check_contact_newton(cli_options: Mapping[str, str], scene) -> None:
-    """Refuse a SNES of one linear step for the mechanics of a scene with contact conditions.
+    """Refuse a SNES of one linear step, or a second line search, for the contact Newton.
 
     ``ksponly`` solves one Newton direction and reports ``CONVERGED_ITS`` whatever the residual:
     a contact problem stopped there was written as converged with its active set still changing.
+    A PETSc line search type given with poromech's search (``solver.line_search: contact``)
+    ran after it on its already searched step (``bt``: other iterations than either search
+    alone), and was not reported.
     """
     if getattr(scene, "physics", None) not in ("mechanics", "poromechanics") \
             or scene.contact.formulation == "none":
@@ -268,6 +271,18 @@ def _check_contact_newton(cli_options: Mapping[str, str], scene) -> None:
             f"{where} = {snes_type!r} takes one linear step and does not check the contact "
             f"conditions of contact.formulation {scene.contact.formulation}: use the default "
             "(poromech's semi-smooth Newton) or newtonls")
+    search = cli_options.get("mech_snes_linesearch_type",
+                             scene.solver.petsc.get("snes_linesearch_type"))
+    if search is not None and snes_type in (None, "python") \
+            and scene.solver.line_search == "contact":
+        # PETSc's search would run on the step poromech's search has already taken
+        where = ("PETSc option '-mech_snes_linesearch_type'"
+                 if "mech_snes_linesearch_type" in cli_options
+                 else "scene key 'solver.petsc.snes_linesearch_type'")
+        raise PetscOptionError(
+            f"{where} = {search!r} would search again along the step of the contact Newton's "
+            "own line search: choose the search with solver.line_search (contact, basic, bt, "
+            "l2 or cp; e.g. --set solver.line_search=bt)")
 
 
 def _check_coupling_jacobian(cli_options: Mapping[str, str], scene) -> None:

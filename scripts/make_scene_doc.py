@@ -180,7 +180,9 @@ def header() -> list[str]:
         "against the PETSc build before meshing, and so are numbers (`*rtol`, `*atol`, "
         "`*max_it`, …); also refused there: a Newton-type `coupling_snes_type` without its "
         "matrix-free Jacobian (`coupling.method: newtonkrylov` is the coupled Newton) and a "
-        "one-step `mech_snes_type` (`ksponly`) with contact conditions. Command-line options "
+        "one-step `mech_snes_type` (`ksponly`) with contact conditions, and a "
+        "`mech_snes_linesearch_type` with poromech's contact search (it would search again "
+        "along its step: `solver.line_search` chooses the search). Command-line options "
         "no solver used are reported at the end.",
         "",
         "**No key is ignored** (`poromech/scene/usage.py`): a section of another physics is "

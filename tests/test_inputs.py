@@ -290,6 +290,25 @@ def test_one_linear_step_is_refused_for_contact():
                         load_scene(ROOT / "configs" / "penny.yaml"))
 
 
+def test_a_petsc_line_search_on_top_of_the_contact_search_is_refused():
+    """``-mech_snes_linesearch_type bt`` ran PETSc's search on the step poromech's search had
+    taken (other Newton iterations than either search alone), unreported: refused before
+    meshing, from the command line or the scene, naming solver.line_search. With a PETSc
+    search chosen by solver.line_search, or PETSc's Newton, the option is PETSc's to read."""
+    scene = load_scene(ROOT / "configs" / "six_fractures_mechanics.yaml")
+    with pytest.raises(PetscOptionError, match=r"^PETSc option '-mech_snes_linesearch_type' = "
+                       r"'bt' would search again .* solver.line_search \(contact, basic"):
+        check_petsc_options({"mech_snes_linesearch_type": "bt"}, scene)
+    table = load_scene(ROOT / "configs" / "six_fractures_mechanics.yaml",
+                       ["solver.petsc={snes_linesearch_type: basic}"])
+    with pytest.raises(PetscOptionError, match="scene key 'solver.petsc.snes_linesearch_type'"):
+        check_petsc_options({}, table)
+    bt = load_scene(ROOT / "configs" / "six_fractures_mechanics.yaml",
+                    ["solver.line_search=bt"])
+    check_petsc_options({"mech_snes_linesearch_type": "l2"}, bt)
+    check_petsc_options({"mech_snes_linesearch_type": "l2", "mech_snes_type": "newtonls"}, scene)
+
+
 # -- output directory ----------------------------------------------------------------------------
 def test_output_directory_paths(tmp_path, capsys):
     afile = tmp_path / "file"
