@@ -196,3 +196,26 @@ def test_scenes_show_and_version(tmp_path):
     assert proc.returncode == 2 and "poromech scenes" in proc.stderr
     proc = run(["--version"])
     assert proc.returncode == 0 and proc.stdout.startswith("poromech 0.1.0")
+
+
+def test_a_probe_along_a_crack_reads_its_plus_side(tmp_path):
+    """Sneddon's crack from (-1, 0) to (1, 0): n⁺ = (0, 1), the + side below. A probe along it
+    read u from the cell of smallest input index, alternating sides (u_y +1.7e-3 and -1.8e-3
+    m at neighbouring points); now every point reads the + side, as a probe 1e-7 m below does,
+    on 1 and 2 ranks."""
+    line = "[{name: along, start: [-0.95, 0], end: [0.95, 0], samples: 20}, " \
+           "{name: below, start: [-0.95, -1e-7], end: [0.95, -1e-7], samples: 20}]"
+    args = ["run", "sneddon", "-q", "--set", "output.xdmf=false", "--set", f"probes={line}"]
+    tables = {}
+    for ranks in (1, 2):
+        out = tmp_path / str(ranks)
+        launch = [mpirun(), "-n", "2", *POROMECH] if ranks == 2 else POROMECH
+        proc = subprocess.run([*launch, *args, "-o", str(out)], capture_output=True, text=True,
+                              cwd=ROOT, timeout=600)
+        assert proc.returncode == 0, proc.stderr
+        for name in ("along", "below"):
+            rows = list(csv.DictReader(open(out / f"probe_{name}.csv")))
+            tables[ranks, name] = np.array([float(r["u_y"]) for r in rows])
+    on, below = tables[1, "along"], tables[1, "below"]
+    assert np.all(on < 0.0) and np.abs(on - below).max() <= 1e-4 * np.abs(below).max()
+    assert np.abs(tables[2, "along"] - on).max() <= 1e-9 * np.abs(on).max()

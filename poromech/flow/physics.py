@@ -26,7 +26,7 @@ from poromech.flow.setup import (
     time_dependent,
 )
 from poromech.flow.state import FlowState
-from poromech.io.probes import LineSampler, open_probes
+from poromech.io.probes import LineSampler, fracture_sides, open_probes
 from poromech.mesh.entities import fracture_segments
 from poromech.physics import Keyed, StepResult
 from poromech.scene.schema import Scene
@@ -178,7 +178,8 @@ class FlowPhysics:
             if self.scene.output.xdmf:
                 self.writer = FlowWriter(self.problem, Path(outdir), resume_until=resume_until)
             self.probes = open_probes(self.fm.msh, self.scene.probes, outdir,
-                                      probe_faces(self.problem), resume_until)
+                                      probe_faces(self.problem), resume_until,
+                                      fracture_sides(self.fm))
 
     def write(self, t: float) -> None:
         """Write the flow fields and the probes at ``t``."""

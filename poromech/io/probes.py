@@ -3,7 +3,10 @@
 A :class:`LineSampler` places ``samples`` equidistant points on a segment. Cell data and finite
 element functions are read from the owned cell containing each point; a point on a shared edge
 or vertex takes the cell with the smallest *input* (original) index, so the answer does not
-depend on the partition.
+depend on the partition. A point on a fracture face, where the displacement and the matrix
+pressure have two values, takes a cell on the face's ``+`` side (``n⁺`` points out of it, the
+side of ``contact.traction_side: plus``): by input index alone a probe along a crack read
+``u_y`` from alternating sides, +1.7e-3 and -1.8e-3 m at neighbouring points.
 Optionally a cell gradient gives the linear reconstruction ``v_K + g_K·(x - x_K)``. Face data
 (one value per fracture face, optionally with values at the face ends for a piecewise linear
 profile) are read only where the line runs *along* a fracture: a face counts when both its end
@@ -30,9 +33,10 @@ from mpi4py import MPI
 
 from poromech.errors import OutputError
 from poromech.io.xdmf import atomic_write_text, root_write
+from poromech.mesh.entities import fracture_segments
 
-__all__ = ["LineSampler", "ProbeTable", "line_differences", "open_probes", "read_csv",
-           "read_number_table", "write_csv"]
+__all__ = ["LineSampler", "ProbeTable", "fracture_sides", "line_differences", "open_probes",
+           "read_csv", "read_number_table", "write_csv"]
 
 Array = npt.NDArray[np.float64]
 
@@ -61,19 +65,64 @@ class LineSampler:
         samples: Number of points (>= 2).
         faces: Optional ``(segments (nf, 2, 2), keys (nf,))`` of the owned fracture faces,
             with partition-independent keys (global face numbers).
+        sides: Optional ``(vertices (nf, d, d), normals n⁺ (nf, d), keys (nf,))`` of the owned
+            fracture faces (:func:`fracture_sides`): a point on one of them takes a cell on its
+            ``+`` side.
     """
 
     def __init__(self, msh: dolfinx.mesh.Mesh, start, end, samples: int,
-                 faces: tuple[Array, Array] | None = None):
+                 faces: tuple[Array, Array] | None = None,
+                 sides: tuple[Array, Array, Array] | None = None):
         self.comm = msh.comm
         self.start, self.end = np.asarray(start, float), np.asarray(end, float)
         s = np.linspace(0.0, 1.0, samples)
         self.points = self.start + s[:, None] * (self.end - self.start)
         self.arc_length = s * float(np.linalg.norm(self.end - self.start))
-        self._cell, self._mine = self._locate_cells(msh)
+        normals = None if sides is None else self._normals_at_points(*sides)
+        self._cell, self._mine = self._locate_cells(msh, normals)
         self._face, self._face_mine = (None, None) if faces is None else self._locate_faces(*faces)
 
-    def _locate_cells(self, msh):
+    def _normals_at_points(self, vertices: Array, normals: Array, keys: Array) -> Array:
+        """``n⁺`` of the fracture face (lowest key) each point lies on; NaN off the fractures.
+
+        Collective: the ranks holding the faces tell the others.
+        """
+        d = self.points.shape[1]
+        scale = max(float(np.linalg.norm(self.end - self.start)),
+                    float(np.abs(self.points).max(initial=0.0)), 1e-300)
+        tol = 1e-9 * scale
+        best = np.full(len(self.points), np.inf)
+        mine = np.zeros((len(self.points), d))
+        a = vertices[:, 0]
+        for i, p in enumerate(self.points):  # the sample points: few
+            if d == 2:
+                e = vertices[:, 1] - a
+                t = np.clip(np.einsum("ni,ni->n", p - a, e) / np.einsum("ni,ni->n", e, e), 0, 1)
+                on = np.linalg.norm(p - a - t[:, None] * e, axis=1) <= tol
+            else:
+                on = np.abs(np.einsum("ni,ni->n", p - a, normals)) <= tol
+                for k in np.flatnonzero(on):  # in the plane: inside the triangle?
+                    e1, e2 = vertices[k, 1] - a[k], vertices[k, 2] - a[k]
+                    g = np.array([[e1 @ e1, e1 @ e2], [e1 @ e2, e2 @ e2]])
+                    lam = np.linalg.solve(g, [(p - a[k]) @ e1, (p - a[k]) @ e2])
+                    on[k] = lam.min() >= -1e-9 and lam.sum() <= 1 + 1e-9
+            if on.any():
+                k = np.flatnonzero(on)[np.argmin(keys[on])]
+                best[i], mine[i] = keys[k], normals[k]
+        lowest = np.empty_like(best)
+        self.comm.Allreduce(best, lowest, op=MPI.MIN)
+        mine[~(np.isfinite(best) & (best == lowest))] = 0.0
+        out = np.empty_like(mine)
+        self.comm.Allreduce(mine, out, op=MPI.SUM)
+        out[~np.isfinite(lowest)] = np.nan
+        return out
+
+    def _locate_cells(self, msh, normals: Array | None = None):
+        """The owned cell of each point (see the module docstring) and which rank's it is.
+
+        ``normals``: ``n⁺`` of the fracture face each point lies on (NaN elsewhere), whose
+        ``+`` cell (centroid on the ``-n⁺`` side) is taken before the other.
+        """
         nc = msh.topology.index_map(msh.topology.dim).size_local
         owned = np.arange(nc, dtype=np.int32)
         tree = dolfinx.geometry.bb_tree(msh, msh.topology.dim, entities=owned)
@@ -84,12 +133,18 @@ class LineSampler:
         key = np.full(len(self.points), np.inf)
         cell = np.full(len(self.points), -1, dtype=np.int64)
         counts = np.diff(hits.offsets)
+        other_side = float(msh.topology.index_map(msh.topology.dim).size_global)
+        x, dofs = msh.geometry.x[:, :self.points.shape[1]], msh.geometry.dofmaps[0]
         for i in np.flatnonzero(counts):  # small: the number of sample points
             links = hits.links(i)
             links = links[links < nc]
             if len(links):
-                j = links[np.argmin(orig[links])]
-                key[i], cell[i] = orig[j], j
+                rank = orig[links]
+                if normals is not None and np.isfinite(normals[i, 0]):
+                    side = (x[dofs[links]].mean(axis=1) - self.points[i]) @ normals[i]
+                    rank = rank + np.where(side < 0.0, 0.0, other_side)
+                j = int(np.argmin(rank))
+                key[i], cell[i] = rank[j], links[j]
         return cell, _global_choice(self.comm, key)
 
     def _locate_faces(self, segments: Array, keys: Array):
@@ -322,8 +377,16 @@ class ProbeTable:
             raise OutputError(f"could not write {self.path}: {os.strerror(err.errno)}") from None
 
 
+def fracture_sides(fm) -> tuple[Array, Array, Array]:
+    """The owned fracture faces of ``fm`` as a :class:`LineSampler`'s ``sides`` (local)."""
+    faces = fm.fractures
+    return (fracture_segments(fm.msh, faces.facets), faces.normal,
+            faces.index.astype(np.float64))
+
+
 def open_probes(msh: dolfinx.mesh.Mesh, probes, outdir: Path, faces: tuple[Array, Array] | None,
-                resume_until: float | None = None) -> list[tuple]:
+                resume_until: float | None = None,
+                sides: tuple[Array, Array, Array] | None = None) -> list[tuple]:
     """The probe lines of a scene and their files: ``[(probe, table), ...]`` (collective).
 
     Args:
@@ -333,7 +396,10 @@ def open_probes(msh: dolfinx.mesh.Mesh, probes, outdir: Path, faces: tuple[Array
         faces: The owned fracture faces as ``(segments (nf, 2, 2), keys)`` in 2D or
             ``(triangles (nf, 3, 3), keys)`` in 3D, or None.
         resume_until: When continuing a run, keep the rows up to this time.
+        sides: The owned fracture faces with their normals (:func:`fracture_sides`), for the
+            side a point on a fracture is read from.
     """
     return [(p, ProbeTable(msh.comm, Path(outdir) / f"probe_{p.name}.csv",
-                           LineSampler(msh, p.start, p.end, p.samples, faces), resume_until))
+                           LineSampler(msh, p.start, p.end, p.samples, faces, sides),
+                           resume_until))
             for p in probes]

@@ -24,7 +24,7 @@ from petsc4py import PETSc
 from poromech.errors import ConfigError
 from poromech.io.checkpoint import NodeRows, face_dof_rows, scalar_row, set_face_dof_rows
 from poromech.io.output import FractureTable, displacement_mesh, fracture_mesh, owned_blocks
-from poromech.io.probes import open_probes
+from poromech.io.probes import fracture_sides, open_probes
 from poromech.io.xdmf import XDMFSeries
 from poromech.mechanics.linear import (
     DirectSolver,
@@ -550,7 +550,7 @@ class MechanicsPhysics:
             segments = (fracture_segments(self.fm.msh, faces.facets, faces.tangents[:, 0]),
                         faces.index.astype(np.float64))
             self._probes = open_probes(self.fm.msh, self.scene.probes, outdir, segments,
-                                       resume_until)
+                                       resume_until, fracture_sides(self.fm))
 
     @property
     def written_face_fields(self) -> tuple[str, ...]:
