@@ -101,11 +101,13 @@ class LineSampler:
                 on = np.linalg.norm(p - a - t[:, None] * e, axis=1) <= tol
             else:
                 on = np.abs(np.einsum("ni,ni->n", p - a, normals)) <= tol
-                for k in np.flatnonzero(on):  # in the plane: inside the triangle?
-                    e1, e2 = vertices[k, 1] - a[k], vertices[k, 2] - a[k]
-                    g = np.array([[e1 @ e1, e1 @ e2], [e1 @ e2, e2 @ e2]])
-                    lam = np.linalg.solve(g, [(p - a[k]) @ e1, (p - a[k]) @ e2])
-                    on[k] = lam.min() >= -1e-9 and lam.sum() <= 1 + 1e-9
+                k = np.flatnonzero(on)  # in a face's plane: inside the triangle?
+                e1, e2, r = vertices[k, 1] - a[k], vertices[k, 2] - a[k], p - a[k]
+                g11, g12, g22 = (e1 * e1).sum(1), (e1 * e2).sum(1), (e2 * e2).sum(1)
+                b1, b2 = (r * e1).sum(1), (r * e2).sum(1)
+                det = g11 * g22 - g12 * g12
+                l1, l2 = (g22 * b1 - g12 * b2) / det, (g11 * b2 - g12 * b1) / det
+                on[k] = (l1 >= -1e-9) & (l2 >= -1e-9) & (l1 + l2 <= 1 + 1e-9)
             if on.any():
                 k = np.flatnonzero(on)[np.argmin(keys[on])]
                 best[i], mine[i] = keys[k], normals[k]
