@@ -145,6 +145,24 @@ def kinked_injection(aperture: float, **extra) -> dict:
     return raw
 
 
+def test_a_method_chosen_by_petsc_options_is_the_one_recorded(tmp_path):
+    """``coupling.petsc: {snes_type: ngmres}`` runs NGMRES: the summary and the step records
+    named Anderson (the scene's method), and the fallback NGMRES was kept to solve a failed
+    step again with the same method. Now both name NGMRES, which leaves no fallback; the run
+    equals ``coupling.method: ngmres``'s."""
+    from poromech.run import Run
+
+    chosen = load_scene(TERZAGHI, ["time.steps=3", "coupling.petsc={snes_type: ngmres}"])
+    with Run(chosen, tmp_path / "petsc") as run:
+        a = run.execute()
+        assert run.physics.fixed_point.fallback is None
+    b = run_scene(load_scene(TERZAGHI, ["time.steps=3", "coupling.method=ngmres"]),
+                  tmp_path / "method")
+    assert a["coupling"]["method"] == a["coupling_method"] == "ngmres"
+    assert [r["method"] for r in a["solves"]] == ["ngmres"] * 3
+    assert [r["g_evaluations"] for r in a["solves"]] == [r["g_evaluations"] for r in b["solves"]]
+
+
 def test_composite_keeps_the_anderson_history(tmp_path):
     """``composite`` is Anderson on Picard sweeps. As PETSc's ``composite`` of a Picard sweep
     and Anderson it restarted Anderson's history at every outer iteration, and on this scene

@@ -450,6 +450,12 @@ REPORTED = [
                                                     "flow.fracture_source": DELETE}),
     ("poromechanics", "coupling.memory", 3, {"coupling.method": "picard",
                                              "coupling.fallback": "newtonkrylov"}),
+    # one solve: no storage term to stabilize, no earlier step (both changed nothing, unsaid)
+    ("poromechanics", "coupling.stabilization", 2.0, {"time": DELETE,
+                                                     "flow.fracture_source": "1e-5"}),
+    ("poromechanics", "coupling.extrapolate", False, {"time": DELETE,
+                                                     "flow.fracture_source": "1e-5"}),
+    ("poromechanics", "coupling.stabilization", 2.0, {"material.biot": 0.0}),
 ]
 
 

@@ -145,6 +145,20 @@ class FixedPointStats:
         return f"{self.noise[-1] / self.pnorm:.1e} of |p|" if self.pnorm > 0 else "|p| = 0"
 
 
+def method_run(method: str, snes: PETSc.SNES) -> str:
+    """The name of the method ``snes`` runs, set up for ``coupling.method`` ``method``.
+
+    ``method`` when the SNES has its type; else the method of :data:`METHOD_OPTIONS` with that
+    type and no inner solver, or ``snes_type <type>`` for a type no method has.
+    """
+    kind = snes.getType()
+    if kind == METHOD_OPTIONS[method]["snes_type"]:
+        return method
+    same = [m for m, o in METHOD_OPTIONS.items()
+            if o["snes_type"] == kind and "npc_snes_type" not in o]
+    return same[0] if same else f"snes_type {kind}"
+
+
 class FixedPoint:
     """The SNES on ``p - g(p)`` of one coupled problem, and its fallback (collective).
 
@@ -159,6 +173,7 @@ class FixedPoint:
             PETSc options).
 
     Attributes:
+        method: The method that runs (:func:`method_run`).
         stats: The :class:`FixedPointStats` of the current step (:meth:`start_step`).
         failure: Why ``g`` failed in the current attempt, or None.
         N: Global number of unknowns.
@@ -172,8 +187,12 @@ class FixedPoint:
         self.N = self.P.getSize()
         self._last_eval = self.P.duplicate()
         self.snes, self._options = self._create_snes(settings.method, "coupling_", settings.petsc)
+        #: The method that runs: ``coupling.method``, unless a PETSc option chose another SNES
+        #: type (``-coupling_snes_type ngmres``: the records named Anderson, and the fallback
+        #: NGMRES would have solved a failed step again with the same method).
+        self.method = method_run(settings.method, self.snes)
         #: Method a failed step is solved again with (``coupling.fallback``), built on first use.
-        self.fallback = None if settings.fallback in ("none", settings.method) \
+        self.fallback = None if settings.fallback in ("none", self.method) \
             else settings.fallback
         self._fallback_snes: tuple[PETSc.SNES, PrefixedOptions] | None = None
         self.stats = FixedPointStats()

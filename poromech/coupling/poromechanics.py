@@ -330,7 +330,7 @@ class Poromechanics:
     def describe(self) -> dict:
         """Discretization and sizes, for the summary."""
         return {**self.mech.describe(), "flow_unknowns": self.flow.dofs.num_global,
-                "coupling_method": self.scene.coupling.method,
+                "coupling_method": self.fixed_point.method,
                 "coupling_unknowns": int(self.fixed_point.N)}
 
     def initialize(self) -> dict:
@@ -393,7 +393,7 @@ class Poromechanics:
         fp = self.fixed_point
         fp.start_step()
         t0 = time.perf_counter()
-        method = self.scene.coupling.method
+        method = fp.method
         reason = self._attempt(t, method, retry=False)
         if reason <= 0 and self._switch_on_fracture_stabilization(t, reason):
             reason = self._attempt(t, method)
@@ -600,7 +600,7 @@ class Poromechanics:
                 "factorizations", "darcy_iterations", "darcy_solves")
         done = [r for r in records if "g_evaluations" in r]
         summary["coupling"] = {
-            "method": self.scene.coupling.method,
+            "method": self.fixed_point.method,
             "rtol": self.scene.coupling.rtol,
             **{k: int(sum(r.get(k, 0) for r in done)) for k in keys},
             "mechanics_seconds": float(sum(r["mechanics_seconds"] for r in done)),

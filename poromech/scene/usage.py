@@ -185,6 +185,11 @@ def _conditional(scene: Scene, key: str, has_fractures: bool, dim: int = 2) -> s
             return f"coupling.method {scene.coupling.method} keeps no history"
         if rest == "fracture_stabilization" and not has_fractures:
             return "the scene has no fractures"
+        if rest in ("stabilization", "fracture_stabilization", "extrapolate") and not transient:
+            return ("the scene has no time steps (one solve: no storage term to stabilize, no "
+                    "earlier step to extrapolate from)")
+        if rest == "stabilization" and scene.material is not None and scene.material.biot == 0:
+            return "material.biot is 0 (the fixed-stress term is b²/K_dr)"
     if head == "output" and rest in ("every", "checkpoint") and not transient:
         return "the scene has no time steps (one solve)"
     if head == "output" and rest == "fractures_csv" and not (has_fractures and mechanics):
