@@ -215,6 +215,8 @@ class Run:
             summary["status"] = "converged"
         except SolverError as err:
             summary["status"] = f"failed: {err}"
+            if err.record:  # the work of the step that failed, its attempts and cuts included
+                summary["failed_step"] = err.record
             raise
         except Interrupted as err:
             summary["status"] = f"interrupted: {err}"

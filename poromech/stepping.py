@@ -108,7 +108,8 @@ def _advance(physics: Physics, t0: float, t1: float, max_cuts: int,
     if static:
         result = physics.solve(t1, None)
         if not result.converged:
-            raise SolverError(result.message, result.reason, result.history, result.record)
+            raise SolverError(result.message, result.reason, result.history,
+                              {"time": t1, **result.record})
         return result, []
     dt, cuts, attempts = t1 - t0, 0, []
     failed_from = None  # (start time, first residual) of the last failed attempt
@@ -125,7 +126,7 @@ def _advance(physics: Physics, t0: float, t1: float, max_cuts: int,
                     f"of the longer step, {first:.6g}: the loads do not change with t there, "
                     "and a shorter step would solve the same problem; not cut further)",
                     result.reason, result.history,
-                    {**_totals(result.record, attempts, physics.counters),
+                    {"time": t, **_totals(result.record, attempts, physics.counters),
                      "attempts": attempts})
             failed_from = (t0, first)
         if result.converged:
@@ -144,7 +145,7 @@ def _advance(physics: Physics, t0: float, t1: float, max_cuts: int,
         if cuts > max_cuts:
             raise SolverError(f"{result.message} (after {max_cuts} step cuts)", result.reason,
                               result.history,
-                              {**_totals(result.record, attempts, physics.counters),
+                              {"time": t, **_totals(result.record, attempts, physics.counters),
                                "attempts": attempts})
         dt *= 0.5
         log.warning("step to t=%g s failed (%s); retrying with dt=%g s (cut %d of %d)",

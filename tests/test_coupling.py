@@ -98,6 +98,12 @@ def test_injection_opens_closes_and_conserves_mass(tmp_path):
                                        abs=1e-12 * dt * abs(mb["sources"]) + 1e-18)
     totals = summary["coupling"]
     assert totals["g_evaluations"] == sum(r["g_evaluations"] for r in summary["solves"])
+    # the flow report counts the Darcy solves of g (it said 0) and the last step's balance
+    flow = summary["flow"]
+    assert flow["linear_iterations"] == totals["darcy_iterations"] >= totals["darcy_solves"] > 0
+    assert flow["conservation"]["time"] == summary["solves"][-1]["time"]
+    assert flow["conservation"]["max_relative_residual"] == max(
+        r["mass_balance"]["relative_residual"] for r in summary["solves"])
 
 
 def test_apertures_clamped_at_the_initial_state_are_counted(tmp_path):
@@ -161,6 +167,23 @@ def test_a_method_chosen_by_petsc_options_is_the_one_recorded(tmp_path):
     assert a["coupling"]["method"] == a["coupling_method"] == "ngmres"
     assert [r["method"] for r in a["solves"]] == ["ngmres"] * 3
     assert [r["g_evaluations"] for r in a["solves"]] == [r["g_evaluations"] for r in b["solves"]]
+
+
+def test_a_failed_run_records_the_work_of_its_failed_step(tmp_path):
+    """A coupled step that fails after its fallback and its cuts wrote ``solves: []`` and zero
+    totals, with about 40 ``g`` evaluations done: ``summary.json`` now holds the failed step,
+    its time, its work summed over the attempts and the attempts themselves."""
+    scene = load_scene(INJECTION, ["coupling.method=picard", "coupling.max_it=6",
+                                   "coupling.fallback=none", "time.max_cuts=1",
+                                   "output.xdmf=false"])
+    with pytest.raises(SolverError):
+        run_scene(scene, tmp_path / "run")
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    failed = summary["failed_step"]
+    attempts = failed["attempts"]
+    assert summary["status"].startswith("failed") and len(attempts) == 2
+    assert failed["time"] == attempts[-1]["time"] < attempts[0]["time"]
+    assert failed["g_evaluations"] == sum(a["g_evaluations"] for a in attempts) >= 14
 
 
 def test_composite_keeps_the_anderson_history(tmp_path):
