@@ -250,3 +250,25 @@ def test_face_coordinates_far_from_the_origin_keep_their_resolution(tmp_path):
     assert np.abs(xy1 - shift - xy0).max() <= 1e-6
     assert len({(r[3], r[4]) for r in rows1}) == len(rows1)
     assert max(len(r[3].replace(".", "").lstrip("0")) for r in rows0) <= 9
+
+
+@pytest.mark.parametrize("degree", [1, 2])
+def test_displacement_points_are_the_mesh_points_to_the_bit(tmp_path, degree):
+    """The points of displacement.xdmf were tabulated dof coordinates: the top nodes of the
+    six-fracture box at y = 1 - 1.1e-16, the two copies of a crack node up to 2.2e-16 apart,
+    and ParaView's probes found no cell there. Now the mesh's vertices and the means of its
+    edges' vertices: every boundary node on its side exactly, every crack node's two copies at
+    one point."""
+    out = tmp_path / "run"
+    proc = subprocess.run([*POROMECH, "run", SCENE, "-o", str(out), "-q", "--set",
+                           "time.steps=1", "--set", f"degree={degree}"], cwd=ROOT,
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    x = read_series(out, "displacement").points[:, :2]
+    near = np.abs(x[:, 1] - 1.0) < 1e-12
+    assert near.sum() > 10 and np.all(x[near, 1] == 1.0)
+    near = np.abs(x[:, 0] - 2.0) < 1e-12
+    assert near.sum() > 10 and np.all(x[near, 0] == 2.0)
+    exact = len(np.unique(x, axis=0))
+    rounded = len(np.unique(np.round(x, 12), axis=0))
+    assert exact == rounded < len(x)  # the copies of the crack nodes coincide exactly
