@@ -493,10 +493,10 @@ def main(argv: list[str] | None = None) -> int:
     _setup_logging(comm.rank, getattr(args, "quiet", False), verbose)
     try:
         return _COMMANDS[args.command](args, petsc_opts, comm)
+    except (PetscOptionError, OutputDirError, ResourceError) as err:  # before ConfigError
+        return _end(comm, EXIT_CONFIG, str(err))
     except ConfigError as err:
         return _end(comm, EXIT_CONFIG, f"invalid scene: {err}")
-    except (PetscOptionError, OutputDirError, ResourceError) as err:
-        return _end(comm, EXIT_CONFIG, str(err))
     except SolverError as err:  # raised outside a run (e.g. by a restart)
         return _end(comm, EXIT_SOLVER, str(err))
     except Exception as err:

@@ -38,12 +38,15 @@ import dolfinx_solver  # noqa: F401  (MPI before petsc4py)
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from poromech.errors import ConfigError
+
 __all__ = [
     "GLOBAL_OPTIONS",
     "PREFIXES",
     "PetscOptionError",
     "PrefixedOptions",
     "check_petsc_options",
+    "database_options",
     "ksp_reason_name",
     "reason_name",
     "forget_read_options",
@@ -113,8 +116,19 @@ _TYPED = {
 }
 
 
-class PetscOptionError(ValueError):
+class PetscOptionError(ConfigError):
     """A PETSc option that cannot be right; the message is one line."""
+
+
+def database_options() -> dict[str, str]:
+    """The options of poromech's solvers (:data:`PREFIXES`) in PETSc's database, without dash.
+
+    Those a script set with ``petsc4py.PETSc.Options()`` (the command line's, under
+    ``poromech run``): :class:`poromech.run.Run` checks them with the scene's
+    (:func:`check_petsc_options`) before meshing.
+    """
+    return {k: ("" if v is None else str(v)) for k, v in PETSc.Options().getAll().items()
+            if k.startswith(PREFIXES)}
 
 
 def _has_type(kind: str, value: str) -> bool:

@@ -27,8 +27,10 @@ import poromech
 from poromech.errors import ConfigError, SolverError
 from poromech.io.checkpoint import load_checkpoint, save_checkpoint
 from poromech.io.output import write_summary
+from poromech.io.xdmf import atomic_write_text, root_write
 from poromech.mesh.fractured import FracturedMesh, distribute_mesh
 from poromech.mesh.generate import generate_mesh
+from poromech.petsc_options import check_petsc_options, database_options
 from poromech.physics import Physics
 from poromech.scene.fields import validate_fields
 from poromech.scene.geometry import mesh_sizes, scene_geometry
@@ -160,6 +162,9 @@ class Run:
                  prepare: Callable[[Physics], None] | None = None):
         if restart and outdir is None:
             raise ValueError("a restart continues the run of an output directory: give outdir")
+        # the checks of `poromech run` for a run made from a script: the scene's PETSc options
+        # and those set in PETSc's database (ksponly, a second line search, ...), before meshing
+        check_petsc_options(database_options(), scene)
         self.scene, self.comm, self.raw, self.restart = scene, comm, raw, restart
         self.outdir = None if outdir is None else Path(outdir)
         self.mesh, self.prepare = mesh, prepare
@@ -237,9 +242,15 @@ class Run:
             return
         if self.comm.rank == 0:
             self.outdir.mkdir(parents=True, exist_ok=True)
-            if self.raw is not None and not self.restart:
-                (self.outdir / SCENE_FILE).write_text(yaml.safe_dump(self.raw, sort_keys=False))
+        if not self.restart:  # a restart stores its scene once the checkpoint accepted it
+            self._store_scene()
         self.comm.barrier()
+
+    def _store_scene(self) -> None:
+        """Write the scene mapping next to the outputs, if the run was given one (collective)."""
+        if self.outdir is not None and self.raw is not None:
+            root_write(self.comm, atomic_write_text, self.outdir / SCENE_FILE,
+                       yaml.safe_dump(self.raw, sort_keys=False))
 
     def _write_summary(self) -> None:
         if self.outdir is not None:
@@ -272,6 +283,9 @@ class Run:
         """The state of the last completed step from the checkpoint: (steps done, its time)."""
         meta, arrays = load_checkpoint(self.comm, self.outdir)
         self._check_restart(meta)
+        # the scene the run goes on with (a run extended by more steps, or continued with
+        # other settings through the API): Results.scene and a later --restart read it
+        self._store_scene()
         start, resume = meta["steps_done"], meta["time"]
         self.physics.restore(arrays, resume)
         self.records.extend(meta["records"])

@@ -85,3 +85,40 @@ def test_import_poromech_loads_mpi_first():
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.split()[1] == "1"
     assert poromech.__version__
+
+
+def test_a_script_run_gets_the_petsc_checks_of_poromech_run(tmp_path):
+    """``run_scene`` skipped the PETSc checks of ``poromech run``: a scene asking for
+    ``snes_type: ksponly`` wrote a contact problem as converged after one linear step (slip
+    1e5 times too small). Refused before meshing, as a ``ConfigError``, from the scene and from
+    PETSc's options database."""
+    from petsc4py import PETSc
+
+    scene = load_scene("six_fractures_mechanics", [*COARSE, "solver.petsc={snes_type: ksponly}"])
+    with pytest.raises(ConfigError, match="takes one linear step"):
+        run_scene(scene, tmp_path / "a")
+    assert not (tmp_path / "a").exists()  # nothing meshed or written
+    opts = PETSc.Options()
+    opts["mech_snes_linesearch_type"] = "bt"
+    try:
+        with pytest.raises(ConfigError, match="would search again"):
+            run_scene(load_scene("six_fractures_mechanics", COARSE), tmp_path / "b")
+    finally:
+        opts.delValue("mech_snes_linesearch_type")
+
+
+def test_a_restart_from_a_script_stores_the_scene_it_goes_on_with(tmp_path):
+    """A run extended through the API by more steps kept the scene of its first part in
+    ``poromech_scene.yaml``: ``Results.scene`` said 3 steps, and ``poromech run --restart`` of
+    the folder was refused (the checkpoint ended after step 6)."""
+    sets = [*COARSE, "degree=1", "output.xdmf=false"]
+    scene, raw = load_scene_and_raw("injection", [*sets, "time.final=40", "time.steps=2"])
+    run_scene(scene, tmp_path / "run", raw=raw)
+    scene, raw = load_scene_and_raw("injection", [*sets, "time.final=80", "time.steps=4"])
+    run_scene(scene, tmp_path / "run", raw=raw, restart=True)
+    res = open_results(tmp_path / "run")
+    assert res.summary["completed_steps"] == 4 and res.scene["time"] == {"final": 80,
+                                                                          "steps": 4}
+    again = subprocess.run([sys.executable, "-m", "poromech", "run", "-q", "--restart",
+                            str(tmp_path / "run")], capture_output=True, text=True, timeout=600)
+    assert again.returncode == 0, again.stderr
