@@ -18,6 +18,7 @@ Writes docs/poromechanics/fault_reactivation.{csv,md,png}.
 
 from __future__ import annotations
 
+import argparse
 import datetime
 import sys
 import tempfile
@@ -76,7 +77,10 @@ def analyse(scene, times, s, f):
     return steps, onset, critical
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
+    # no options: --help says what the script runs and writes, and runs nothing
+    argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                            formatter_class=argparse.RawDescriptionHelpFormatter).parse_args(argv)
     DOCS.mkdir(parents=True, exist_ok=True)
     scene = load_scene(SCENE, ["output.xdmf=false"])
     with tempfile.TemporaryDirectory() as tmp:

@@ -19,6 +19,7 @@ Writes docs/poromechanics/mandel3d.{csv,md,png}.
 
 from __future__ import annotations
 
+import argparse
 import datetime
 import sys
 import tempfile
@@ -53,7 +54,10 @@ def run(tmp: Path, size: float, steps: int):
     return scene, out, summary
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
+    # no options: --help says what the script runs and writes, and runs nothing
+    argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                            formatter_class=argparse.RawDescriptionHelpFormatter).parse_args(argv)
     DOCS.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)

@@ -17,6 +17,7 @@ Writes ``docs/mechanics/robustness.csv`` and ``docs/mechanics/robustness.md``.
 
 from __future__ import annotations
 
+import argparse
 import csv
 import datetime
 import math
@@ -175,7 +176,10 @@ def label(formulation: str, theta: int) -> str:
     return f"nitsche θ={theta:+d}" if formulation == "nitsche" else formulation.replace("_", "-")
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
+    # no options: --help says what the script runs and writes, and runs nothing
+    argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                            formatter_class=argparse.RawDescriptionHelpFormatter).parse_args(argv)
     comm = MPI.COMM_WORLD
     OUT.mkdir(parents=True, exist_ok=True)
     rows = []

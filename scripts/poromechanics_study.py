@@ -787,10 +787,16 @@ def report() -> None:
     DOCS.mkdir(parents=True, exist_ok=True)
     done = {p.name for p in RUNS.glob("m*_*") if (p / "study.json").exists()
             and summary(p.name)["status"] == "converged"}
+    if not done:
+        raise SystemExit(f"no converged study run in {RUNS}: run the studies first (see the "
+                         "module docstring); report only redraws from their results")
     ref = build_reference(done)
+    # the figures' run: the finest mesh, nitsche, P2, fewest ranks, then by name (the key
+    # missed degree and ranks: a set's hash order chose between P1 and P2)
     finest = max((r for r in done if parse(r)["method"] == "anderson"
                   and parse(r)["m"] <= REFERENCE_MESH),
-                 key=lambda r: (parse(r)["m"], parse(r)["formulation"] == "nitsche"))
+                 key=lambda r: (parse(r)["m"], parse(r)["formulation"] == "nitsche",
+                                parse(r)["degree"], -parse(r)["ranks"], r))
     figure_states(finest)
     figure_overpressure(finest)
     panels = {}
@@ -974,6 +980,8 @@ def main() -> None:
     p.add_argument("--again", action="store_true", help="repeat runs already done")
     p.add_argument("--case", nargs=5, metavar=("M", "FORMULATION", "DEGREE", "METHOD", "RANKS"))
     args = p.parse_args()
+    if args.study == "case" and args.case is None:
+        p.error("the study 'case' needs --case M FORMULATION DEGREE METHOD RANKS")
     if args.study == "case":
         m, f, d, method, n = args.case
         run_case(int(m), f, int(d), method, int(n), again=args.again)
