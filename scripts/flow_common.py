@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import csv
 import datetime
+import shlex
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +17,14 @@ DOCS = ROOT / "docs" / "flow"
 
 
 def generated(command: str, ranks: int) -> str:
-    """The dated provenance line that starts every generated document."""
+    """The dated provenance line that starts every generated document.
+
+    The options the script was run with are added when ``command`` does not hold them: a
+    table made with fewer levels said it came from the full command.
+    """
+    given = shlex.join(sys.argv[1:])
+    if given and given not in command:
+        command = f"{command} {given}"
     return f"Generated {datetime.date.today()} by `{command}` ({ranks} MPI rank(s))"
 
 

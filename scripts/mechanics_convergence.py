@@ -18,6 +18,8 @@ from __future__ import annotations
 import argparse
 import csv
 import datetime
+import shlex
+import sys
 import time
 from pathlib import Path
 
@@ -212,7 +214,10 @@ def main() -> None:
             w.writeheader()
             for r in rows:
                 w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
-        write_markdown(rows, OUT / "convergence.md", "python scripts/mechanics_convergence.py")
+        # the options the rows were made with (fewer levels: a partial table)
+        command = " ".join(["python scripts/mechanics_convergence.py",
+                            *map(shlex.quote, sys.argv[1:])])
+        write_markdown(rows, OUT / "convergence.md", command)
         plot(rows, OUT / "convergence.png")
 
 
