@@ -845,6 +845,9 @@ def _tables(done: set[str], ref: Reference | None) -> None:
                  "[reference.md](reference.md): [accuracy.md](accuracy.md).\n"]
         _accuracy_tables(done, ref)
     crows = _cost_rows(done)
+    if not crows and (DOCS / "cost.csv").exists():
+        print(f"no unit costs among the runs: {DOCS / 'cost.csv'} is left as it was, from an "
+              "earlier report (it may not match runs.csv)", file=sys.stderr)
     if crows:
         ch = ["run", "ranks", "dofs", "g evaluations", "Newton it", "face Newton it",
               "factorizations", "mechanics s", "Darcy s", "run s", "elastic solve s",
