@@ -380,14 +380,28 @@ def _cell(m: dict, key: str, fmt: str) -> str:
     return "–" if v is None else format(v, fmt)
 
 
-def report() -> None:
-    """kink.csv and kink.md from the experiments and the study runs (results/)."""
+def report(partial: bool = False) -> None:
+    """kink.csv and kink.md from the experiments and the study runs (results/).
+
+    Refused when runs of the committed table are missing from results/ (a fresh clone has
+    none: the table went from 61 rows to 3), unless ``partial``.
+    """
     import csv
 
     rows = [metrics(OUT / name) for name in EXPERIMENTS if (OUT / name / "summary.json").exists()]
     study = sorted(p for p in STUDY.glob("m*_P2_anderson_n*") if (p / "summary.json").exists()
                    and "stabilized" not in p.name)
     rows += [metrics(p) for p in study]
+    if (DOCS / "kink.csv").exists() and not partial:
+        with open(DOCS / "kink.csv") as fh:
+            committed = {r["run"] for r in csv.DictReader(ln for ln in fh
+                                                          if not ln.startswith("#"))}
+        missing = sorted(committed - {m["run"] for m in rows})
+        if missing:
+            raise SystemExit(f"{len(missing)} runs of {DOCS / 'kink.csv'} are not in results/ "
+                             f"(e.g. {', '.join(missing[:3])}): run them first (`all`, and "
+                             "the study runs), or give --partial to write a table of the "
+                             f"{len(rows)} present")
     date = datetime.date.today()
     DOCS.mkdir(parents=True, exist_ok=True)
     keys = ["run", "status"] + [c[0] for c in COLUMNS] + ["late_slip_all_mean_um",
@@ -424,7 +438,9 @@ def main() -> None:
     r.add_argument("name", choices=sorted(EXPERIMENTS))
     a = sub.add_parser("all", help="every experiment not yet run (--again: all)")
     a.add_argument("--again", action="store_true")
-    sub.add_parser("report")
+    rp = sub.add_parser("report")
+    rp.add_argument("--partial", action="store_true",
+                    help="write the table of the runs present even if committed rows go")
     pt = sub.add_parser("points")
     pt.add_argument("path")
     pt.add_argument("--time", type=float, default=T)
@@ -438,7 +454,7 @@ def main() -> None:
             if args.again or not (OUT / name / "kink.json").exists():
                 subprocess.run([sys.executable, __file__, "run", name], cwd=ROOT, check=False)
     elif args.cmd == "report":
-        report()
+        report(args.partial)
     elif args.cmd == "points":
         cols = ["jump_n", "jump_t", "dslip", "Tn_plus", "Tn_minus", "Tn_mean", "Tt_plus",
                 "Tt_minus", "Tt_mean", "P_n", "P_t", "S"]
