@@ -1,6 +1,6 @@
 """The 3D fault-reactivation scene: history, error against run time, and the cost ratios.
 
-    python scripts/fault_reactivation3d.py            # three levels, nitsche and stabilized_mixed
+    python scripts/fault_reactivation3d.py  # 3 levels: nitsche, stabilized_mixed, mean_nitsche P1
     python scripts/fault_reactivation3d.py --levels coarse medium --formulations nitsche-P1
     python scripts/fault_reactivation3d.py --levels xfine --formulations nitsche-P2 --ranks 2
     python scripts/fault_reactivation3d.py --levels local4 local2 local1 --formulations nitsche-P2
