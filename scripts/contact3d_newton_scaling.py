@@ -342,7 +342,9 @@ def report(rows: list[dict], stamps: list[str]) -> None:
     self_keys = ("case", "degree", "scale", "dofs", *diffs)
     lines = [f"# Newton iterations on a 3D fracture network in contact\n\n{stamp}. See the "
              "docstring of `scripts/contact3d_newton_scaling.py` for the scene, the levels and "
-             "the columns. Linear solver: MUMPS LU. `iterations`: Newton iterations of the 4 "
+             "the columns. Linear solver: MUMPS LU (`krylov`: GMRES iterations of the "
+             "directions solved with a kept factorization as preconditioner, the stale "
+             "solves). `iterations`: Newton iterations of the 4 "
              "load steps (step 1 compression, steps 2-4 shear); `open`/`stick`/`slip`: contact "
              "points in each state at the final time (Gauss points for nitsche, faces "
              "otherwise); `jump_diff`: relative L² difference of the final jumps from "
