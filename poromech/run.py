@@ -25,7 +25,7 @@ from mpi4py import MPI
 
 import poromech
 from poromech.errors import ConfigError, SolverError
-from poromech.io.checkpoint import load_checkpoint, save_checkpoint
+from poromech.io.checkpoint import CHECKPOINT, load_checkpoint, save_checkpoint
 from poromech.io.output import write_summary
 from poromech.io.xdmf import atomic_write_text, root_write
 from poromech.mesh.fractured import FracturedMesh, distribute_mesh
@@ -162,6 +162,10 @@ class Run:
                  prepare: Callable[[Physics], None] | None = None):
         if restart and outdir is None:
             raise ValueError("a restart continues the run of an output directory: give outdir")
+        if restart and not (Path(outdir) / CHECKPOINT).is_file():  # as poromech run says it
+            raise ConfigError(f"restart of {outdir}: the run there wrote no {CHECKPOINT} (a "
+                              "scene without time steps, output.checkpoint: false, or a run "
+                              "that stopped before its first step): nothing to continue from")
         # the checks of `poromech run` for a run made from a script: the scene's PETSc options
         # and those set in PETSc's database (ksponly, a second line search, ...), before meshing
         check_petsc_options(database_options(), scene)

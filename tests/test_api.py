@@ -122,3 +122,10 @@ def test_a_restart_from_a_script_stores_the_scene_it_goes_on_with(tmp_path):
     again = subprocess.run([sys.executable, "-m", "poromech", "run", "-q", "--restart",
                             str(tmp_path / "run")], capture_output=True, text=True, timeout=600)
     assert again.returncode == 0, again.stderr
+
+
+def test_a_script_restart_without_a_checkpoint_is_a_config_error(tmp_path):
+    """``run_scene(restart=True)`` of a folder without a checkpoint raised h5py's error text;
+    ``poromech run --restart`` says in one line that there is nothing to continue from."""
+    with pytest.raises(ConfigError, match="wrote no checkpoint.h5"):
+        run_scene(load_scene("six_fractures_mechanics", COARSE), tmp_path, restart=True)
