@@ -123,7 +123,13 @@ def test_signal_stops_cleanly_at_a_step_boundary(tmp_path, signum, code):
 
 
 def test_disk_full_is_one_line_and_keeps_completed_steps(tmp_path):
-    """A file-size limit (set after MPI start-up) makes a write fail like a full disk."""
+    """A file-size limit (set after MPI start-up) makes a write fail like a full disk.
+
+    The limit is above every file a step writes anew (the mesh of displacement.h5, 389 kB, and
+    the checkpoint, 310 kB since it holds a row per dof block; it was the checkpoint that
+    exceeded it before), so that fractures.csv, which grows by 10 kB a step, reaches it
+    after about 40 steps.
+    """
     out = tmp_path / "full_disk"
     code = textwrap.dedent(f"""
         import resource, sys
@@ -131,13 +137,14 @@ def test_disk_full_is_one_line_and_keeps_completed_steps(tmp_path):
         from mpi4py import MPI
         resource.setrlimit(resource.RLIMIT_FSIZE, (400_000, resource.RLIM_INFINITY))
         from poromech.cli import main
-        sys.exit(main(["run", {SCENE!r}, "-o", {str(out)!r}]))
+        sys.exit(main(["run", {SCENE!r}, "-o", {str(out)!r}, "--set", "time.steps=80"]))
     """)
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           cwd=ROOT, timeout=600)
     assert proc.returncode == 1, proc.stderr
     lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and "could not write" in lines[0] and "File too large" in lines[0]
+    assert "fractures.csv" in lines[0]
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"].startswith("error: OutputError")
     assert check_readable(out) >= summary["completed_steps"] >= 1
