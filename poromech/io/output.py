@@ -95,28 +95,36 @@ def node_keys(fm: FracturedMesh, V: fem.FunctionSpace) -> npt.NDArray[np.int64]:
     Returns:
         The keys of the owned and ghost blocks, ``(n,)``.
     """
-    msh, comm = V.mesh, V.mesh.comm
+    comm = V.mesh.comm
     verts = np.asarray(fm.cracked_cells, dtype=np.int64)
     n = int(comm.allreduce(int(verts.max(initial=-1)), op=MPI.MAX)) + 1
-    layout = V.dofmap.dof_layout
     dofs = V.dofmap.list[: len(verts)]
-    if layout.num_dofs != verts.shape[1] + sum(len(layout.entity_dofs(1, e))
-                                               for e in range(_edges(msh).shape[0])):
-        raise ValueError("output meshes are made for P1 and P2 spaces only")
     keys = np.empty(V.dofmap.index_map.size_local + V.dofmap.index_map.num_ghosts, np.int64)
-    for v in range(verts.shape[1]):
-        for j in layout.entity_dofs(0, v):
-            keys[dofs[:, j]] = verts[:, v] * n + verts[:, v]
-    for e, (i, k) in enumerate(_edges(msh)):
-        lo, hi = np.minimum(verts[:, i], verts[:, k]), np.maximum(verts[:, i], verts[:, k])
-        for j in layout.entity_dofs(1, e):
-            keys[dofs[:, j]] = lo * n + hi
+    for j, (a, b) in _node_entities(V):
+        lo, hi = np.minimum(verts[:, a], verts[:, b]), np.maximum(verts[:, a], verts[:, b])
+        keys[dofs[:, j]] = lo * n + hi
     return keys
 
 
 def _edges(msh: dolfinx.mesh.Mesh) -> npt.NDArray[np.int64]:
     """The reference cell's edges as pairs of local vertices (basix order)."""
     return np.asarray(basix.topology(msh.basix_cell())[1], dtype=np.int64)
+
+
+def _node_entities(V: fem.FunctionSpace) -> list[tuple[int, tuple[int, int]]]:
+    """Each local dof (block) of a cell of a P1 or P2 space and the cell vertices it sits on.
+
+    ``(j, (a, b))``: dof ``j`` of the cell layout on the edge of local vertices ``a, b``, or
+    on vertex ``a`` when ``a == b``.
+    """
+    layout, cell = V.dofmap.dof_layout, V.mesh.basix_cell()
+    nverts = len(basix.topology(cell)[0])
+    out = [(j, (v, v)) for v in range(nverts) for j in layout.entity_dofs(0, v)]
+    out += [(j, (int(i), int(k))) for e, (i, k) in enumerate(_edges(V.mesh))
+            for j in layout.entity_dofs(1, e)]
+    if len(out) != layout.num_dofs:
+        raise ValueError("output meshes are made for P1 and P2 spaces only")
+    return out
 
 
 def displacement_mesh(fm: FracturedMesh, V: fem.FunctionSpace) -> MeshPiece:
@@ -156,14 +164,9 @@ def _dof_points(V: fem.FunctionSpace) -> npt.NDArray[np.float64]:
     x = msh.geometry.x[:, :gdim]
     geo = msh.geometry.dofmaps[0][:ncells]
     dofs = V.dofmap.list[:ncells]
-    layout = V.dofmap.dof_layout
     out = np.empty((V.dofmap.index_map.size_local + V.dofmap.index_map.num_ghosts, gdim))
-    for v in range(geo.shape[1]):
-        for j in layout.entity_dofs(0, v):
-            out[dofs[:, j]] = x[geo[:, v]]
-    for e, (i, k) in enumerate(_edges(msh)):
-        for j in layout.entity_dofs(1, e):
-            out[dofs[:, j]] = 0.5 * (x[geo[:, i]] + x[geo[:, k]])
+    for j, (a, b) in _node_entities(V):  # a vertex: 0.5 (x + x) = x, exactly
+        out[dofs[:, j]] = 0.5 * (x[geo[:, a]] + x[geo[:, b]])
     return out
 
 
