@@ -607,17 +607,8 @@ class Poromechanics:
             "darcy_seconds": float(sum(r["darcy_seconds"] for r in done)),
             "fracture_stabilization_from": self.fixed_stress.switched_on_at,
         }
-        # the Darcy solves are counted in the coupled records (darcy_iterations, _seconds)
-        flow = flow_report(self.flow, [])
-        flow["linear_iterations"] = summary["coupling"]["darcy_iterations"]
-        flow["solve_seconds"] = summary["coupling"]["darcy_seconds"]
-        balanced = [r for r in done if "mass_balance" in r]
-        if balanced:
-            flow["conservation"] = {
-                "time": balanced[-1].get("time"), **balanced[-1]["mass_balance"],
-                "max_relative_residual": max(r["mass_balance"]["relative_residual"]
-                                             for r in balanced)}
-        summary["flow"] = flow
+        summary["flow"] = flow_report(self.flow, done, iterations="darcy_iterations",
+                                      seconds="darcy_seconds")
 
     # -- checkpoint ------------------------------------------------------------------------
     def state(self) -> dict[str, Keyed]:

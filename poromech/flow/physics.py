@@ -208,14 +208,19 @@ class FlowPhysics:
         self.problem.destroy()
 
 
-def flow_report(problem: DarcyProblem, records: list) -> dict[str, Any]:
-    """The ``summary["flow"]`` entry: sizes, solver, final conservation (records separate)."""
+def flow_report(problem: DarcyProblem, records: list, iterations: str = "iterations",
+                seconds: str = "seconds") -> dict[str, Any]:
+    """The ``summary["flow"]`` entry: sizes, solver, final conservation (records separate).
+
+    ``iterations`` and ``seconds``: the record keys of the linear work (a coupled run's records
+    count its Darcy solves as ``darcy_iterations`` and ``darcy_seconds``).
+    """
     counts = problem.dofs.counts
     out: dict[str, Any] = {
         "unknowns": {"total": problem.dofs.num_global, **counts},
         "solver": problem.solver.describe(),
-        "linear_iterations": int(sum(r.get("iterations", 0) for r in records)),
-        "solve_seconds": float(sum(r.get("seconds", 0.0) for r in records)),
+        "linear_iterations": int(sum(r.get(iterations, 0) for r in records)),
+        "solve_seconds": float(sum(r.get(seconds, 0.0) for r in records)),
         "flux_unit": ("m^3/s (volumetric flux)" if problem.dim == 3
                       else "m^2/s (volumetric flux per unit depth)"),
     }
@@ -226,6 +231,7 @@ def flow_report(problem: DarcyProblem, records: list) -> dict[str, Any]:
             "time": last["time"],
             **last["mass_balance"],
             "max_relative_residual": max(r["mass_balance"]["relative_residual"] for r in done),
-            "boundary_fluxes": last["boundary_fluxes"],
         }
+        if "boundary_fluxes" in last:  # flow runs (a coupled run has them in its summary)
+            out["conservation"]["boundary_fluxes"] = last["boundary_fluxes"]
     return out
