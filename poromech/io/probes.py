@@ -48,6 +48,19 @@ def _global_choice(comm: MPI.Comm, key: Array) -> npt.NDArray[np.bool_]:
     return np.isfinite(key) & (key == best)
 
 
+def _in_triangle(r: Array, e1: Array, e2: Array, eps: float = 1e-9) -> npt.NDArray[np.bool_]:
+    """Whether ``a + r`` lies in the triangle ``a, a + e1, a + e2`` of its plane (to ``eps``).
+
+    Arrays of 3-vectors along the last axis, broadcast against each other: one point against
+    many triangles or many points against one. Barycentric coordinates by Cramer's rule.
+    """
+    g11, g12, g22 = (e1 * e1).sum(-1), (e1 * e2).sum(-1), (e2 * e2).sum(-1)
+    b1, b2 = (r * e1).sum(-1), (r * e2).sum(-1)
+    det = g11 * g22 - g12 * g12
+    l1, l2 = (g22 * b1 - g12 * b2) / det, (g11 * b2 - g12 * b1) / det
+    return (l1 >= -eps) & (l2 >= -eps) & (l1 + l2 <= 1 + eps)
+
+
 #: 3D: a probe's line lies in a fracture's plane when both ends are within this fraction of the
 #: scene's scale (line length or coordinates) of it. Coordinates of a line in an inclined
 #: fracture written to 4-5 digits are ~5e-6 of the scale off its plane: with 1e-8 such a
@@ -102,12 +115,7 @@ class LineSampler:
             else:
                 on = np.abs(np.einsum("ni,ni->n", p - a, normals)) <= tol
                 k = np.flatnonzero(on)  # in a face's plane: inside the triangle?
-                e1, e2, r = vertices[k, 1] - a[k], vertices[k, 2] - a[k], p - a[k]
-                g11, g12, g22 = (e1 * e1).sum(1), (e1 * e2).sum(1), (e2 * e2).sum(1)
-                b1, b2 = (r * e1).sum(1), (r * e2).sum(1)
-                det = g11 * g22 - g12 * g12
-                l1, l2 = (g22 * b1 - g12 * b2) / det, (g11 * b2 - g12 * b1) / det
-                on[k] = (l1 >= -1e-9) & (l2 >= -1e-9) & (l1 + l2 <= 1 + 1e-9)
+                on[k] = _in_triangle(p - a[k], vertices[k, 1] - a[k], vertices[k, 2] - a[k])
             if on.any():
                 k = np.flatnonzero(on)[np.argmin(keys[on])]
                 best[i], mine[i] = keys[k], normals[k]
@@ -185,12 +193,7 @@ class LineSampler:
         key = np.full(len(self.points), np.inf)
         face = np.full(len(self.points), -1, dtype=np.int64)
         for k in np.flatnonzero(coplanar):
-            g = np.array([[e1[k] @ e1[k], e1[k] @ e2[k]], [e1[k] @ e2[k], e2[k] @ e2[k]]])
-            rhs = np.column_stack([(self.points - a[k]) @ e1[k], (self.points - a[k]) @ e2[k]])
-            lam = np.linalg.solve(g, rhs.T).T
-            eps = 1e-9
-            inside = ((lam[:, 0] >= -eps) & (lam[:, 1] >= -eps) & (lam.sum(axis=1) <= 1 + eps)
-                      & (keys[k] < key))
+            inside = _in_triangle(self.points - a[k], e1[k], e2[k]) & (keys[k] < key)
             key[inside], face[inside] = keys[k], k
         return face, _global_choice(self.comm, key)
 
