@@ -218,17 +218,23 @@ def level(degree: int, scale: float, beta: bool, forms: list[str] | None = None)
     against the same formulation with the default β⁰. ``forms``: only these variants (and the
     reference).
     """
-    rows, ref = [], None
+    rows, ref, ref_ok = [], None, True
     for name, form, theta in VARIANTS:
         if forms and name not in forms and ref is not None:
             continue
         base = None
         for factor in (1.0, *BETA_FACTORS) if beta else (1.0,):
             row, wj = solve(overrides(degree, scale, form, theta, factor))
-            ref = wj if ref is None else ref
-            base = wj if base is None else base
+            if ref is None:
+                ref, ref_ok = wj, row["converged"]
+            if base is None:
+                base, base_ok = wj, row["converged"]
             case = name if factor == 1.0 else f"{name} β⁰×{factor:g}"
-            row.update(differences(wj, ref if factor == 1.0 else base))
+            diff = differences(wj, ref if factor == 1.0 else base)
+            # a failed run (or reference) holds the last accepted state, not its solution
+            if not (row["converged"] and (ref_ok if factor == 1.0 else base_ok)):
+                diff = dict.fromkeys(diff, float("nan"))
+            row.update(diff)
             rows.append({"case": case, "formulation": form,
                          "theta": "" if theta is None else theta, "degree": degree,
                          "scale": scale, "beta_factor": factor, **row})

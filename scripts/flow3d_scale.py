@@ -187,6 +187,20 @@ def launch(level: float, ranks: int, variants: list[str]) -> list[dict]:
     return rows
 
 
+def replaced(rows: list[dict], new: list[dict]) -> list[dict]:
+    """The rows with each new row in place of an earlier one of its case, else added.
+
+    A case is its level, ranks, variant and the variants it was run with: running one again
+    with ``--append`` replaces its row instead of adding a second one.
+    """
+    def key(r: dict) -> tuple:
+        return float(r["level"]), int(r["ranks"]), str(r["variant"]), str(r["case"])
+
+    fresh = {key(r): r for r in new}
+    kept = [fresh.pop(key(r), r) for r in rows]
+    return kept + [r for r in new if key(r) in fresh]
+
+
 MAIN = ["level", "ranks", "variant", "unknowns", "shifted", "iterations", "gmsh_s", "mesh_s",
         "setup_s", "pc_setup_s", "solve_s", "peak_mesh_gb", "peak_gb", "mass_balance_rel",
         "outflow", "load"]
@@ -360,12 +374,13 @@ def main() -> None:
     if not args.report:
         if not args.append:
             commands, rows = [], []
-        commands.append("python scripts/flow3d_scale.py " + " ".join(sys.argv[1:]))
+        command = "python scripts/flow3d_scale.py " + " ".join(sys.argv[1:])
+        commands = [c for c in commands if c != command] + [command]
         groups = [args.variants] if args.together else [[v] for v in args.variants]
         for level in args.levels:
             for ranks in args.ranks:
                 for variants in groups:
-                    rows += launch(level, ranks, variants)
+                    rows = replaced(rows, launch(level, ranks, variants))
                     write_csv(OUT / "flow3d_scale.csv", commands, FIELDS, rows)
     report(rows, commands)
 
