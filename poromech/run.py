@@ -33,7 +33,7 @@ from poromech.mesh.generate import generate_mesh
 from poromech.petsc_options import check_petsc_options, database_options
 from poromech.physics import Physics
 from poromech.scene.fields import validate_fields
-from poromech.scene.geometry import mesh_sizes, scene_geometry
+from poromech.scene.geometry import absolute_geometry_paths, mesh_sizes, scene_geometry
 from poromech.scene.schema import Scene, step_times
 from poromech.stepping import Interrupted, run_steps, stop_signals
 from poromech.timing import Timer
@@ -169,6 +169,9 @@ class Run:
         # the checks of `poromech run` for a run made from a script: the scene's PETSc options
         # and those set in PETSc's database (ksponly, a second line search, ...), before meshing
         check_petsc_options(database_options(), scene)
+        # relative file names of a mapping given to scene_from_dict were read from the working
+        # directory: stored as absolute paths, a later --restart of outdir finds them again
+        raw = None if raw is None else absolute_geometry_paths(raw, Path.cwd())
         self.scene, self.comm, self.raw, self.restart = scene, comm, raw, restart
         self.outdir = None if outdir is None else Path(outdir)
         self.mesh, self.prepare = mesh, prepare

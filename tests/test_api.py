@@ -7,7 +7,7 @@ import sys
 
 import numpy as np
 import pytest
-from conftest import load_script
+from conftest import ROOT, load_script
 
 import poromech
 from poromech.errors import ConfigError
@@ -129,3 +129,29 @@ def test_a_script_restart_without_a_checkpoint_is_a_config_error(tmp_path):
     ``poromech run --restart`` says in one line that there is nothing to continue from."""
     with pytest.raises(ConfigError, match="wrote no checkpoint.h5"):
         run_scene(load_scene("six_fractures_mechanics", COARSE), tmp_path, restart=True)
+
+
+def test_a_script_scene_with_a_relative_mesh_file_restarts_from_elsewhere(tmp_path, monkeypatch):
+    """``scene_from_dict`` reads a relative file name from the working directory, but the
+    stored ``poromech_scene.yaml`` kept the name, and ``poromech run --restart`` took it from
+    the output folder: "there is no file .../run/my.msh"."""
+    import shutil
+
+    import yaml
+
+    from poromech.scene.loading import scene_from_dict
+
+    work = tmp_path / "work"
+    work.mkdir()
+    shutil.copy(ROOT / "meshes" / "six_fractures.msh", work / "my.msh")
+    raw = yaml.safe_load((ROOT / "configs" / "six_fractures_msh.yaml").read_text())
+    raw["geometry"]["mesh"]["file"] = "my.msh"
+    raw.update(degree=1, time={"final": 200.0, "steps": 2}, output={"xdmf": False})
+    monkeypatch.chdir(work)
+    run_scene(scene_from_dict(raw), tmp_path / "run", raw=raw)
+    stored = yaml.safe_load((tmp_path / "run" / "poromech_scene.yaml").read_text())
+    assert stored["geometry"]["mesh"]["file"] == str((work / "my.msh").resolve())
+    again = subprocess.run([sys.executable, "-m", "poromech", "run", "-q", "--restart",
+                            str(tmp_path / "run")], capture_output=True, text=True, timeout=600,
+                           cwd=tmp_path)
+    assert again.returncode == 0, again.stderr
