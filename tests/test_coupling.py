@@ -753,3 +753,53 @@ def test_a_confined_box_under_uniform_pressure_stays_at_rest(tmp_path, formulati
     assert np.allclose(p, 1.0e6 + 1.0e10 * 1.0e-6 * 100.0, rtol=1e-9)
     u = read_series(tmp_path, "displacement").fields(-1)["u"]
     assert np.abs(u).max() <= 1e-12 * 1.0e6 / 1.0e9  # of α p L / E
+
+
+TINY_CORNER = """
+name: tiny_corner
+physics: poromechanics
+geometry:
+  domain: {rectangle: [0.0, 0.0, 1.0, 1.0]}
+  fractures:
+    - {name: c, points: [[0.05, 0.05], [0.15, 0.12]]}
+mesh: {size: 0.5, fracture_size: 0.05}
+degree: 1
+material: {young: 1.0e10, poisson: 0.25, biot: 0.8}
+contact: {formulation: stabilized_mixed, friction: coulomb, friction_coefficient: 0.3}
+boundary_conditions:
+  - {boundary: bottom, displacement: [0.0, 0.0]}
+  - {boundary: top, displacement: ["1e-5*t", "-1e-5*t"]}
+time: {final: 2.0, steps: 2}
+flow:
+  permeability: 1.0e-14
+  viscosity: 1.0e-3
+  biot_modulus: 1.0e10
+  porosity: 0.2
+  initial_pressure: 1.0e5
+  aperture: 1.0e-4
+  boundary_conditions:
+    - {boundary: left, pressure: 2.0e5}
+output: {xdmf: false}
+"""
+
+
+@pytest.mark.mpi
+def test_ranks_owning_no_fracture_face_take_part_in_the_aperture(tmp_path):
+    """A short fracture in a corner on 4 ranks: three ranks own none of its 3 faces but hold
+    copies of them. The aperture skipped the (collective) face fields on those ranks, and the
+    run hung before its first step. Now it runs, and as on 1 rank."""
+    scene = tmp_path / "tiny_corner.yaml"
+    scene.write_text(TINY_CORNER)
+    rows = {}
+    for n in (1, 4):
+        out = tmp_path / f"n{n}"
+        cmd = [mpirun(), "-n", str(n), sys.executable, "-m", "poromech", "run", str(scene), "-q",
+               "-o", str(out)]
+        proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=180)
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        rows[n] = np.genfromtxt(out / "fractures.csv", delimiter=",", names=True, dtype=None,
+                                encoding="utf-8", comments="#")
+    assert len(rows[1]) == len(rows[4]) == 9  # 3 faces at t = 0, 1, 2
+    for name in ("jump_n", "jump_t", "traction_n", "p_f"):
+        a, b = rows[1][name], rows[4][name]
+        assert np.abs(a - b).max() <= 1e-6 * np.abs(a).max(), name

@@ -302,7 +302,7 @@ class Poromechanics:
         return np.maximum(d, floor), int(self.comm.allreduce(int(np.count_nonzero(d < floor))))
 
     def _jump_n(self) -> Array:
-        return self.model.face_fields()["jump_n"] if self.nf else np.empty(0)
+        return self.model.face_fields()["jump_n"]  # collective: also on ranks owning no face
 
     def _update_flow(self, p_in: Array, pf_in: Array) -> None:
         """Aperture and porosity from the current displacement, into the Darcy problem.
