@@ -15,11 +15,13 @@ import dolfinx_solver  # noqa: F401
 import basix
 import basix.ufl
 import dolfinx
+import dolfinx.fem.petsc
 import numpy as np
 import numpy.typing as npt
 import ufl
 from dolfinx import fem
 from mpi4py import MPI
+from petsc4py import PETSc
 
 from poromech.errors import ConfigError
 from poromech.forms import contact as cforms
@@ -120,6 +122,33 @@ INCOMPRESSIBLE_FRICTION_POISSON = 0.4995
 _STRESS_INDEX = {2: ((0, 0), (1, 1), (0, 1)),
                  3: ((0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1))}
 
+
+
+def _force_densities(W: fem.FunctionSpace,
+                     loads: list[npt.NDArray[np.float64]]) -> list[npt.NDArray[np.float64]]:
+    """Force densities: the L² representers of owned load vectors (collective).
+
+    ``z`` with ``M z = b``, ``M`` the mass matrix of ``W``, for each ``b`` of shape ``(n, bs)``.
+    """
+    u, v = ufl.TrialFunction(W), ufl.TestFunction(W)
+    M = dolfinx.fem.petsc.assemble_matrix(fem.form(ufl.inner(u, v) * ufl.dx))
+    M.assemble()
+    ksp = PETSc.KSP().create(W.mesh.comm)
+    ksp.setOperators(M)
+    ksp.setType("cg")
+    ksp.getPC().setType("jacobi")
+    ksp.setTolerances(rtol=1e-10, atol=0.0, max_it=1000)
+    b, z = M.createVecRight(), M.createVecLeft()
+    out = []
+    try:
+        for load in loads:
+            b.array[:] = np.asarray(load).ravel()
+            ksp.solve(b, z)
+            out.append(z.array.reshape(np.shape(load)).copy())
+    finally:
+        for obj in (ksp, M, b, z):
+            obj.destroy()
+    return out
 
 @dataclass
 class _Updater:
@@ -667,12 +696,18 @@ class MechanicsModel:
         return sigma0
 
     def _weight(self):
-        """The body force ``ρ g`` of gravity (N/m³) as UFL, or None."""
+        """The body force ``ρ g`` of gravity (N/m³) as UFL, or None.
+
+        A density that varies is interpolated in DG of the displacement degree, as ``σ⁰`` is:
+        a density linear in depth and its quadratic ``σ⁰`` are then in exact discrete
+        equilibrium with P2 (DG0 left an imbalance of the order of the cell size times the
+        density gradient, refused as such).
+        """
         g, rho = self.scene.gravity, self.scene.material.density
         if g is None or rho is None:
             return None
-        Q0 = fem.functionspace(self.fm.msh, ("DG", 0))
-        return self._field(Q0, rho, "density") * fem.Constant(self.fm.msh, np.asarray(g, float))
+        Q = fem.functionspace(self.fm.msh, ("DG", self.scene.degree))
+        return self._field(Q, rho, "density") * fem.Constant(self.fm.msh, np.asarray(g, float))
 
     def _dirichlet(self) -> list[fem.DirichletBC]:
         geo, fm = self.fm.geometry, self.fm
@@ -766,13 +801,19 @@ class MechanicsModel:
         ``R(v) = ∫ σ⁰:ε(v) - ∫ (f + ρ g)·v - ∫_Γ_N t·v`` on a continuous space of the
         displacement degree (its test functions have no jump, so the fractures, which carry
         ``σ⁰n`` by contact, take no part), with the rows of the imposed displacement components
-        left out (they are reactions). Collective.
+        left out (they are reactions). It is measured by the force density ``z`` (N/m³) that
+        ``R`` represents in L² (``M z = R``, ``M`` the mass matrix), in root mean square over
+        the domain: a weight off by ``δ`` everywhere gives ``δ`` on every mesh, where the raw
+        residual shrinks with the cells (a density off by several percent at depth passed for
+        10⁻³ on coarse meshes); a traction off by ``δt`` on a boundary concentrates as
+        ``δt/h`` there and grows under refinement; a density jump inside cells (a layer the
+        mesh does not follow) fades as ``h^½``. Collective.
 
         Returns:
-            ``residual`` (N/m in 2D), ``scale`` (the largest of ``|∫ σ⁰:ε(v)|`` and
-            ``|∫ (f + ρ g)·v|``: the size of the forces in balance), ``relative`` (``residual``
-            over ``scale``) and ``where`` (the boundary, or ``interior``, with the largest
-            entry).
+            ``residual`` (the RMS of ``z``, N/m³), ``scale`` (the loads' own force density:
+            the larger of the RMS body force ``|f + ρ g|`` and the largest ``|σ⁰|`` over the
+            domain's extent, N/m³), ``relative`` (``residual`` over ``scale``) and ``where``
+            (the boundary where ``|z|`` is largest, or ``interior``).
 
         Raises:
             ConfigError: ``relative`` above :data:`IMBALANCE_LIMIT`.
@@ -786,11 +827,12 @@ class MechanicsModel:
                                      fm.boundary_edge[np.argsort(fm.boundary_facets)] + 1)
         ds = ufl.Measure("ds", domain=msh, subdomain_data=tags)
         internal = ufl.inner(self.initial_stress, epsilon(v)) * dx
-        load = ufl.dot(self.weight, v) * dx if self.weight is not None else None
+        body = ufl.dot(self.weight, v) * dx if self.weight is not None else None
         f = scene.material.body_force or ()
         if not all(e.is_constant and e.value() == 0.0 for e in f):
-            body = ufl.dot(self._vector_input(f), v) * dx
-            load = body if load is None else load + body
+            given = ufl.dot(self._vector_input(f), v) * dx
+            body = given if body is None else body + given
+        load = body
         for bc in scene.boundary_conditions:
             if bc.traction is not None:
                 edges = [i + 1 for i, n in enumerate(fm.geometry.boundary_names)
@@ -803,8 +845,9 @@ class MechanicsModel:
             b.scatter_reverse(dolfinx.la.InsertMode.add)
             return b.array[: W.dofmap.index_map.size_local * d].reshape(-1, d)
 
-        a = assemble(internal)
-        r = a - assemble(load) if load is not None else a.copy()
+        r = assemble(internal)
+        if load is not None:
+            r -= assemble(load)
         fixed = np.zeros_like(r, dtype=bool)
         for bc in scene.boundary_conditions:
             for k, e in enumerate(bc.displacement or ()):
@@ -815,17 +858,35 @@ class MechanicsModel:
                     dofs = dofs[dofs < len(r)]
                     fixed[dofs, k] = True
         r[fixed] = 0.0
+        b = assemble(body) if body is not None else 0.0 * r
+        z, zb = _force_densities(W, [r, b])
         comm = msh.comm
-        norm = float(np.sqrt(comm.allreduce(float(np.sum(r * r)))))
-        scale = max(float(np.sqrt(comm.allreduce(float(np.sum(a * a))))),
-                    float(np.sqrt(comm.allreduce(float(np.sum((a - r) ** 2))))))
-        relative = norm / scale if scale > 0 else 0.0
-        where = self._largest_entry(W, np.abs(r).max(axis=1, initial=0.0))
-        out = {"residual": norm, "scale": scale, "relative": relative, "where": where}
+        volume = comm.allreduce(fem.assemble_scalar(fem.form(1.0 * dx)), op=MPI.SUM)
+        x = msh.geometry.x[: msh.geometry.index_map().size_local]
+        lo = comm.allreduce(x.min(axis=0, initial=np.inf), op=MPI.MIN)
+        hi = comm.allreduce(x.max(axis=0, initial=-np.inf), op=MPI.MAX)
+        extent = float(np.linalg.norm(hi - lo))
+        s0 = self.initial_stress
+        stress = np.abs(s0.value if isinstance(s0, fem.Constant) else s0.x.array)
+        sigma = comm.allreduce(float(stress.max(initial=0.0)), op=MPI.MAX)
+        def rms(density, load):  # ‖z‖_L² / |Ω|^½, with z^T M z = z^T b
+            return float(np.sqrt(max(comm.allreduce(float(np.vdot(density, load))), 0.0)
+                                 / volume))
+
+        residual = rms(z, r)
+        scale = max(rms(zb, b), sigma / extent if extent > 0 else 0.0)
+        relative = residual / scale if scale > 0 else 0.0
+        z[fixed] = 0.0
+        where = self._largest_entry(W, np.abs(z).max(axis=1, initial=0.0))
+        out = {"residual": residual, "scale": scale, "relative": relative, "where": where}
+        if scene.contact.formulation == "none" and self.has_fractures:
+            self._check_fractures_at_rest(sigma)
         if relative > IMBALANCE_LIMIT:
             if where == "interior":
-                place, remedy = "in the interior", ("give the density and gravity that balance "
-                                                    "div σ⁰, or a σ⁰ whose divergence they are")
+                place, remedy = "in the interior", (
+                    "give the density and gravity that balance div σ⁰, or a σ⁰ whose divergence "
+                    "they are; a σ⁰ or density varying on a shorter scale than the cells shows "
+                    "here too: refine the mesh")
             else:
                 place, remedy = f"on boundary {where!r}", (
                     "give that boundary the traction σ⁰n, a displacement condition, or the "
@@ -833,31 +894,77 @@ class MechanicsModel:
             raise ConfigError(
                 f"scene key 'material.initial_stress' is not in equilibrium with the body force "
                 f"and the boundary tractions at t = 0: the residual is {relative:.2g} of the "
-                f"loads, largest {place} ({remedy})")
+                f"loads ({residual:.3g} N/m³ against {scale:.3g} N/m³), largest {place} "
+                f"({remedy})")
         if relative > 1e-8:
             log.warning("the initial stress is in equilibrium to %.1e of the loads only (largest "
-                        "on %s): the imbalance moves the body at the first solve", relative, where)
+                        "%s): the imbalance moves the body at the first solve", relative,
+                        "in the interior" if where == "interior" else f"on boundary {where!r}")
         return out
 
-    def _largest_entry(self, W: fem.FunctionSpace, values: npt.NDArray[np.float64]) -> str:
-        """The named boundary holding the largest of the owned dof ``values``, or ``interior``.
+    def _check_fractures_at_rest(self, sigma: float) -> None:
+        """Without contact a fracture carries only its fluid pressure: ``σ⁰n⁺ = -p n⁺``.
 
-        Collective; the same on every rank.
+        The continuous check above leaves the fractures out (contact carries ``σ⁰n``); with
+        ``contact.formulation: none`` nothing does, and a compressive ``σ⁰`` drove the faces
+        through each other at the first solve (0.57 m in a 1 km box) with every face ``open``.
+        ``p`` is ``fracture_pressure`` (mechanics) or ``flow.initial_pressure`` (coupled) at
+        t = 0, at the face midpoints; ``sigma``: the largest ``|σ⁰|``. Collective.
+
+        Raises:
+            ConfigError: ``|σ⁰n⁺ + p n⁺|`` above :data:`IMBALANCE_LIMIT` ``sigma`` on a face.
+        """
+        scene, faces, d = self.scene, self.fm.fractures, self.fm.msh.geometry.dim
+        pressure = scene.flow.initial_pressure if scene.physics == "poromechanics" \
+            else scene.fracture_pressure
+        x = faces.midpoint[:, :d]
+        stress = np.zeros((len(x), d, d))
+        for (i, j), e in zip(_STRESS_INDEX[d], self.scene.material.initial_stress, strict=True):
+            stress[:, i, j] = stress[:, j, i] = e(x, 0.0)
+        p = pressure(x, 0.0) if pressure is not None else np.zeros(len(x))
+        t = np.einsum("fij,fj->fi", stress, faces.normal[:, :d]) + p[:, None] * faces.normal[:, :d]
+        size = np.linalg.norm(t, axis=1)
+        comm = self.fm.comm
+        worst, owner = comm.allreduce((float(size.max(initial=0.0)), comm.rank), op=MPI.MAXLOC)
+        if not worst > IMBALANCE_LIMIT * sigma:
+            return
+        k = int(np.argmax(size)) if len(size) else 0
+        at, tn = comm.bcast((int(faces.fracture[k]), float(t[k] @ faces.normal[k, :d]))
+                            if comm.rank == owner else None, root=owner)
+        name = self.fm.geometry.fracture_names[at]
+        where = "fracture_pressure" if scene.physics != "poromechanics" \
+            else "flow.initial_pressure"
+        raise ConfigError(
+            f"scene key 'material.initial_stress' loads fracture {name!r} with a traction of "
+            f"{worst:.3g} Pa (normal {tn:.3g} Pa) beyond its fluid pressure ({where}), and "
+            "contact.formulation none lets nothing carry it: the faces would pass through each "
+            "other at the first solve (allowed: a contact formulation, or a σ⁰ whose traction "
+            "on the fractures is -p n)")
+
+    def _largest_entry(self, W: fem.FunctionSpace, values: npt.NDArray[np.float64]) -> str:
+        """Where the owned dof ``values`` are largest: a named boundary, or ``interior``.
+
+        A boundary is named when its largest value exceeds twice the largest of the nodes on
+        no boundary (a traction mismatch concentrates there as ``δt/h``); an imbalance spread
+        through the body is ``interior`` even where it reaches the boundary nodes. Collective;
+        the same on every rank.
         """
         fm, fdim = self.fm, self.fm.msh.topology.dim - 1
-        local = float(values.max(initial=0.0))
-        best = fm.comm.allreduce(local, op=MPI.MAX)
-        place = "interior"
-        for name in dict.fromkeys(fm.geometry.boundary_names):
+        names = list(dict.fromkeys(fm.geometry.boundary_names))
+        inner = np.ones(len(values), dtype=bool)
+        peaks = []
+        for name in names:
             facets = fm.boundary(tuple(i for i, n in enumerate(fm.geometry.boundary_names)
                                        if n == name))
             dofs = fem.locate_dofs_topological(W, fdim, facets)
             dofs = dofs[dofs < len(values)]
-            hit = bool(len(dofs)) and float(values[dofs].max()) >= best > 0
-            if fm.comm.allreduce(hit, op=MPI.LOR):
-                place = name
-                break
-        return place
+            inner[dofs] = False
+            peaks.append(float(values[dofs].max(initial=0.0)))
+        peaks = fm.comm.allreduce(np.asarray(peaks), op=MPI.MAX) if names else np.zeros(0)
+        interior = fm.comm.allreduce(float(values[inner].max(initial=0.0)), op=MPI.MAX)
+        if len(peaks) and peaks.max() > 2.0 * interior:
+            return names[int(np.argmax(peaks))]
+        return "interior"
 
     # -- forms ------------------------------------------------------------------------------
     def _build_forms(self) -> None:
