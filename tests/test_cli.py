@@ -34,6 +34,8 @@ def test_default_scene_outputs(tmp_path):
     assert summary["formulation"] == "mixed" and summary["degree"] == 2
     assert summary["mpi_ranks"] == 1 and summary["dofs"] > 10000
     assert summary["initial"]["reason"].startswith("CONVERGED")
+    # the condensed solve's work at t = 0 (the log said "0 Newton iterations")
+    assert summary["initial"]["iterations"] == 0 and summary["initial"]["face_iterations"] > 0
     assert len(summary["solves"]) == 2
     for s in summary["solves"]:
         assert s["converged"] and s["reason"].startswith("CONVERGED")

@@ -357,10 +357,13 @@ class Poromechanics:
         self.accepted.accept(np.full(self.nc, self.porosity0), aperture)
         self.history = [(0.0, self._pressures())]
         self.continuation.reset(pb.cell_pressure, pb.fracture_pressure)
-        log.info("initial equilibrium under p0: %d Newton iterations%s", rec.iterations,
+        # the condensed mixed solve counts its work as face Newton iterations (0 regular ones)
+        face = f" (+{rec.face_iterations} face Newton)" if rec.face_iterations else ""
+        log.info("initial equilibrium under p0: %d Newton iterations%s%s", rec.iterations, face,
                  f"; {clamped} fracture faces closing below {APERTURE_FLOOR:g} d0 keep that "
                  "aperture" if clamped else "")
-        return {"iterations": rec.iterations, "reason": rec.reason, "clamped_apertures": clamped}
+        return {"iterations": rec.iterations, "face_iterations": rec.face_iterations,
+                "reason": rec.reason, "clamped_apertures": clamped}
 
     def _pressures(self) -> Array:
         return np.concatenate([self.flow.cell_pressure, self.flow.fracture_pressure])
