@@ -345,6 +345,7 @@ class LinearSolver:
                 setup += self._set_up()  # LU from a zero guess: x is overwritten
                 lagged = False
                 self.ksp.solve(b, x)
+                its += self.ksp.getIterationNumber()  # the work of both, as for a new set-up
                 held = True
         self._stale = lagged
         if self._lagging:
