@@ -67,6 +67,10 @@ WRITTEN_FACE_FIELDS_3D = ("jump_n", "jump_t", "jump_tx", "jump_ty", "jump_tz", "
 XDMF_ONLY_FACE_FIELDS = ("contact_fraction", "slip_fraction")
 #: Fractures a failure message names where the contact states cycle (the most faces first).
 CYCLING_NAMED = 4
+#: Largest displacement, as a fraction of the domain's extent (its bounding box's diagonal),
+#: beyond which a run warns once that the small-strain model no longer describes it: a penny
+#: crack of radius 1 m in rock of E = 1 kPa opened by 2.3 km, written as converged.
+LARGE_DISPLACEMENT = 0.05
 
 
 def linear_solver_options(kind: str, formulation: str, degree: int = 1) -> dict:
@@ -281,6 +285,11 @@ class MechanicsPhysics:
             log.info("each step's %s starts from the %s (solver.predictor %s)", what,
                      START_NAMES[rule], scene.solver.predictor)
         self._saved = [f.x.array.copy() for f in model.unknowns]
+        x = fm.msh.geometry.x[: fm.msh.geometry.index_map().size_local]
+        lo = fm.comm.allreduce(x.min(axis=0, initial=np.inf), op=MPI.MIN)
+        hi = fm.comm.allreduce(x.max(axis=0, initial=-np.inf), op=MPI.MAX)
+        self._extent = float(np.linalg.norm(hi - lo))
+        self._warned_large = False
         self._series: dict[str, XDMFSeries] = {}
         self._table: FractureTable | None = None
         self._probes: list[tuple] = []
@@ -491,6 +500,22 @@ class MechanicsPhysics:
         """The solved displacement becomes the reference of the next slip increment."""
         self.model.accept_step()
         self._keep_unknowns()
+        self._check_small_displacements(t)
+
+    def _check_small_displacements(self, t: float) -> None:
+        """Warn once when the displacement leaves the small-strain model (collective)."""
+        if self._warned_large:
+            return
+        big = self.fm.comm.allreduce(float(np.abs(self.model.u.x.array).max(initial=0.0)),
+                                     op=MPI.MAX)
+        if big > LARGE_DISPLACEMENT * self._extent:
+            self._warned_large = True
+            text = (f"at t = {t:g} s the displacement reaches {big:.3g} m, {big / self._extent:.2g}"
+                    f" of the domain's extent ({self._extent:.3g} m): linear elasticity assumes "
+                    "small displacements and strains, and describes nothing physical this far "
+                    "(loads too large, or material.young too small?)")
+            log.warning(text)
+            self.model.warnings.append(text)
 
     def _keep_unknowns(self) -> None:
         """The current unknowns are the accepted ones: the predictor's and a step cut's."""
