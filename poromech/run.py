@@ -178,6 +178,8 @@ class Run:
         self.physics: Physics | None = None
         self.timer = Timer()
         self.records: list[dict] = []
+        #: ``{"from_step", "mpi_ranks"}`` of each part of a restarted run (this one last).
+        self.parts: list[dict] = [{"from_step": 0, "mpi_ranks": comm.size}]
         self.summary: dict = {
             "scene": scene.name,
             "physics": scene.physics,
@@ -298,7 +300,11 @@ class Run:
         self.records.extend(meta["records"])
         if meta.get("initial"):
             self.summary["initial"] = meta["initial"]
+        # the parts before (a checkpoint from before 2026-11-29 does not know its ranks)
+        self.parts = [*meta.get("parts", [{"from_step": 0, "mpi_ranks": None}]),
+                      {"from_step": start, "mpi_ranks": self.comm.size}]
         self.summary["restarted_from"] = {"step": start, "time": resume}
+        self.summary["parts"] = self.parts
         self.summary["completed_steps"] = start  # a run restarted after its last step has none
         log.info("restart after step %d (t = %g s)", start, resume)
         return start, resume
@@ -342,7 +348,7 @@ class Run:
                 meta = {"steps_done": k + 1, "time": t, "records": self.records,
                         "initial": summary.get("initial"),
                         "mesh": summary["mesh"], "dofs": summary.get("dofs"),
-                        "scene": self.scene.name}
+                        "scene": self.scene.name, "parts": self.parts}
                 save_checkpoint(self.comm, self.outdir, meta, self.physics.state())
 
 

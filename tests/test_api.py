@@ -119,6 +119,9 @@ def test_a_restart_from_a_script_stores_the_scene_it_goes_on_with(tmp_path):
     res = open_results(tmp_path / "run")
     assert res.summary["completed_steps"] == 4 and res.scene["time"] == {"final": 80,
                                                                           "steps": 4}
+    # each part's first step and ranks (a restart on other ranks recorded only its own)
+    assert res.summary["parts"] == [{"from_step": 0, "mpi_ranks": 1},
+                                    {"from_step": 2, "mpi_ranks": 1}]
     again = subprocess.run([sys.executable, "-m", "poromech", "run", "-q", "--restart",
                             str(tmp_path / "run")], capture_output=True, text=True, timeout=600)
     assert again.returncode == 0, again.stderr
