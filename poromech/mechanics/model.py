@@ -123,7 +123,6 @@ _STRESS_INDEX = {2: ((0, 0), (1, 1), (0, 1)),
                  3: ((0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1))}
 
 
-
 def _force_densities(W: fem.FunctionSpace,
                      loads: list[npt.NDArray[np.float64]]) -> list[npt.NDArray[np.float64]]:
     """Force densities: the L² representers of owned load vectors (collective).
@@ -149,6 +148,7 @@ def _force_densities(W: fem.FunctionSpace,
         for obj in (ksp, M, b, z):
             obj.destroy()
     return out
+
 
 @dataclass
 class _Updater:
@@ -869,6 +869,7 @@ class MechanicsModel:
         s0 = self.initial_stress
         stress = np.abs(s0.value if isinstance(s0, fem.Constant) else s0.x.array)
         sigma = comm.allreduce(float(stress.max(initial=0.0)), op=MPI.MAX)
+
         def rms(density, load):  # ‖z‖_L² / |Ω|^½, with z^T M z = z^T b
             return float(np.sqrt(max(comm.allreduce(float(np.vdot(density, load))), 0.0)
                                  / volume))
