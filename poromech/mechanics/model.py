@@ -39,6 +39,7 @@ from poromech.forms.fracture import (
     slip,
 )
 from poromech.mechanics.coercivity import symmetric_nitsche_ratio
+from poromech.mesh.entities import domain_extent
 from poromech.mesh.fractured import (
     FRACTURE_TAG,
     FracturedMesh,
@@ -862,10 +863,7 @@ class MechanicsModel:
         z, zb = _force_densities(W, [r, b])
         comm = msh.comm
         volume = comm.allreduce(fem.assemble_scalar(fem.form(1.0 * dx)), op=MPI.SUM)
-        x = msh.geometry.x[: msh.geometry.index_map().size_local]
-        lo = comm.allreduce(x.min(axis=0, initial=np.inf), op=MPI.MIN)
-        hi = comm.allreduce(x.max(axis=0, initial=-np.inf), op=MPI.MAX)
-        extent = float(np.linalg.norm(hi - lo))
+        extent = domain_extent(msh)
         s0 = self.initial_stress
         stress = np.abs(s0.value if isinstance(s0, fem.Constant) else s0.x.array)
         sigma = comm.allreduce(float(stress.max(initial=0.0)), op=MPI.MAX)
@@ -961,7 +959,8 @@ class MechanicsModel:
             dofs = dofs[dofs < len(values)]
             inner[dofs] = False
             peaks.append(float(values[dofs].max(initial=0.0)))
-        peaks = fm.comm.allreduce(np.asarray(peaks), op=MPI.MAX) if names else np.zeros(0)
+        local, peaks = np.asarray(peaks, dtype=float), np.zeros(len(peaks))
+        fm.comm.Allreduce(local, peaks, op=MPI.MAX)
         interior = fm.comm.allreduce(float(values[inner].max(initial=0.0)), op=MPI.MAX)
         if len(peaks) and peaks.max() > 2.0 * interior:
             return names[int(np.argmax(peaks))]

@@ -41,7 +41,7 @@ from poromech.mechanics.newton import (
     quoted_history,
 )
 from poromech.mechanics.predictor import START_NAMES, StepPredictor, start_rule
-from poromech.mesh.entities import fracture_segments
+from poromech.mesh.entities import domain_extent, fracture_segments
 from poromech.mesh.fractured import FracturedMesh, cracked_space
 from poromech.physics import Keyed, StepResult
 from poromech.scene.resources import (
@@ -285,10 +285,7 @@ class MechanicsPhysics:
             log.info("each step's %s starts from the %s (solver.predictor %s)", what,
                      START_NAMES[rule], scene.solver.predictor)
         self._saved = [f.x.array.copy() for f in model.unknowns]
-        x = fm.msh.geometry.x[: fm.msh.geometry.index_map().size_local]
-        lo = fm.comm.allreduce(x.min(axis=0, initial=np.inf), op=MPI.MIN)
-        hi = fm.comm.allreduce(x.max(axis=0, initial=-np.inf), op=MPI.MAX)
-        self._extent = float(np.linalg.norm(hi - lo))
+        self._extent = domain_extent(fm.msh)
         self._warned_large = False
         self._series: dict[str, XDMFSeries] = {}
         self._table: FractureTable | None = None

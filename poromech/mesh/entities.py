@@ -16,10 +16,12 @@ import dolfinx_solver  # noqa: F401  (orders MPI before the bindings)
 import dolfinx
 import numpy as np
 import numpy.typing as npt
+from mpi4py import MPI
 
 __all__ = [
     "CellGeometry",
     "cell_geometry",
+    "domain_extent",
     "facet_ridges",
     "facet_vertices",
     "fracture_segments",
@@ -185,3 +187,12 @@ def fracture_segments(msh: dolfinx.mesh.Mesh, facets: npt.NDArray[np.int32],
         swap = np.einsum("ni,ni->n", x[:, 1] - x[:, 0], tangents) < 0
         x[swap] = x[swap][:, ::-1]
     return x
+
+
+def domain_extent(msh: dolfinx.mesh.Mesh) -> float:
+    """The diagonal of the mesh's bounding box (m; collective, the same on every rank)."""
+    x = msh.geometry.x[: msh.geometry.index_map().size_local]
+    lo, hi = np.empty(x.shape[1]), np.empty(x.shape[1])
+    msh.comm.Allreduce(np.ascontiguousarray(x.min(axis=0, initial=np.inf)), lo, op=MPI.MIN)
+    msh.comm.Allreduce(np.ascontiguousarray(x.max(axis=0, initial=-np.inf)), hi, op=MPI.MAX)
+    return float(np.linalg.norm(hi - lo))

@@ -326,10 +326,15 @@ def fracture_summary(model, fm: FracturedMesh, flow=None) -> dict[str, npt.NDArr
     def total(q):
         return comm.allreduce(np.bincount(faces.fracture, weights=q, minlength=k), op=MPI.SUM)
 
+    def largest(q):  # elementwise (the pickling allreduce compares whole arrays)
+        out = np.empty_like(q)
+        comm.Allreduce(q, out, op=MPI.MAX)
+        return out
+
     length = total(w)
     out = {"jump_n": total(w * values["jump_n"]) / length, "jump_t": total(w * jt) / length,
-           "jump_y": comm.allreduce(np.array([jy[faces.fracture == j].max(initial=0.0)
-                                              for j in range(k)]), op=MPI.MAX)}
+           "jump_y": largest(np.array([jy[faces.fracture == j].max(initial=0.0)
+                                       for j in range(k)]))}
     for code, name in enumerate(("open", "stick", "slip")):
         out[name] = total(w * (states == code)) / length
     if flow is not None:
