@@ -41,9 +41,6 @@ EXIT_ERROR = 1
 EXIT_CONFIG = 2
 EXIT_SOLVER = 3
 
-#: Seconds the ranks that hit an unexpected error wait for the others to report the same before
-#: aborting (an error on all ranks ends cleanly; on some ranks only, the others never arrive).
-AGREE_TIMEOUT = 5.0
 #: Seconds between printing an error on some ranks only and aborting (output forwarding).
 ABORT_DRAIN = 0.2
 
@@ -357,28 +354,6 @@ _COMMANDS = {"run": _run, "validate": _validate, "scenes": _scenes, "show": _sho
 
 
 # -- errors ----------------------------------------------------------------------------------
-_ERROR_COMMS: dict = {}
-
-
-def _error_comm(comm):
-    """A duplicate of ``comm`` used only to find out whether an error hit every rank."""
-    key = comm.py2f()
-    if key not in _ERROR_COMMS:
-        _ERROR_COMMS[key] = comm.Dup()
-    return _ERROR_COMMS[key]
-
-
-def _all_ranks_failed(comm) -> bool:
-    """Whether every rank reaches this point within :data:`AGREE_TIMEOUT` seconds."""
-    request = _error_comm(comm).Ibarrier()
-    deadline = time.monotonic() + AGREE_TIMEOUT
-    while time.monotonic() < deadline:
-        if request.Test():
-            return True
-        time.sleep(0.01)
-    return False
-
-
 def _end(comm, code: int, line: str, err: BaseException | None = None) -> int:
     """Print an error once and return its status on every rank (collective when all failed).
 
@@ -392,7 +367,9 @@ def _end(comm, code: int, line: str, err: BaseException | None = None) -> int:
         line: The message.
         err: An unexpected exception whose traceback to print (``-v``).
     """
-    if comm.size == 1 or _all_ranks_failed(comm):
+    from poromech.parallel import all_ranks_failed
+
+    if all_ranks_failed(comm):
         if comm.rank == 0:
             if err is not None:
                 traceback.print_exception(err)
@@ -478,11 +455,12 @@ def main(argv: list[str] | None = None) -> int:
 
     from poromech.errors import ConfigError, SolverError
     from poromech.io.outdir import OutputDirError
+    from poromech.parallel import error_comm
     from poromech.petsc_options import PetscOptionError
     from poromech.scene.resources import ResourceError
 
     comm = MPI.COMM_WORLD
-    _error_comm(comm)
+    error_comm(comm)
     own, petsc_opts = _split_petsc_options(list(sys.argv[1:] if argv is None else argv))
     _Parser.silent = comm.rank != 0
     try:

@@ -9,6 +9,10 @@ Two helpers cover the two ways an error can arise:
 * :func:`agree` ends a step in which every rank checked its own data (e.g. its own cells): the
   first error found (lowest check index, then lowest rank) is raised on every rank.
 
+An error that escapes both (a bug, a library raising on one rank) is raised on some ranks only;
+:func:`all_ranks_failed` tells the ranks that hit it whether the others did too, so that they
+skip the collective calls of their clean-up (which the others would never join) and abort.
+
 Errors that every rank detects identically by itself (a scene file read on every rank) need
 neither. Both helpers are collective.
 """
@@ -16,12 +20,47 @@ neither. Both helpers are collective.
 from __future__ import annotations
 
 import pickle
+import time
 from collections.abc import Callable
 from typing import Any
 
 from mpi4py import MPI
 
-__all__ = ["agree", "on_root"]
+__all__ = ["AGREE_TIMEOUT", "agree", "all_ranks_failed", "error_comm", "on_root"]
+
+#: Seconds the ranks that hit an unexpected error wait for the others to report the same (an
+#: error on all ranks ends cleanly; on some ranks only, the others never arrive).
+AGREE_TIMEOUT = 5.0
+_ERROR_COMMS: dict = {}
+
+
+def error_comm(comm: MPI.Comm) -> MPI.Comm:
+    """A duplicate of ``comm`` used only to find out whether an error hit every rank.
+
+    Collective the first time for a communicator: create it where every rank passes (the start
+    of a run), not when an error is already on some ranks only.
+    """
+    key = comm.py2f()
+    if key not in _ERROR_COMMS:
+        _ERROR_COMMS[key] = comm.Dup()
+    return _ERROR_COMMS[key]
+
+
+def all_ranks_failed(comm: MPI.Comm) -> bool:
+    """Whether every rank reaches this point within :data:`AGREE_TIMEOUT` seconds.
+
+    Called by the ranks an exception reached; True at once on one rank.
+    """
+    if comm.size == 1:
+        return True
+    request = error_comm(comm).Ibarrier()
+    deadline = time.monotonic() + AGREE_TIMEOUT
+    while time.monotonic() < deadline:
+        if request.Test():
+            return True
+        time.sleep(0.01)
+    return False
+
 
 def _portable(err: BaseException) -> BaseException:
     """The exception itself if it survives pickling, else a RuntimeError with its message."""

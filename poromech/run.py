@@ -30,6 +30,7 @@ from poromech.io.output import write_summary
 from poromech.io.xdmf import atomic_write_text, root_write
 from poromech.mesh.fractured import FracturedMesh, distribute_mesh
 from poromech.mesh.generate import generate_mesh
+from poromech.parallel import all_ranks_failed, error_comm
 from poromech.petsc_options import check_petsc_options, database_options
 from poromech.physics import Physics
 from poromech.scene.fields import validate_fields
@@ -173,6 +174,7 @@ class Run:
         # directory: stored as absolute paths, a later --restart of outdir finds them again
         raw = None if raw is None else absolute_geometry_paths(raw, Path.cwd())
         self.scene, self.comm, self.raw, self.restart = scene, comm, raw, restart
+        error_comm(comm)  # collective: made while every rank passes here
         self.outdir = None if outdir is None else Path(outdir)
         self.mesh, self.prepare = mesh, prepare
         self.physics: Physics | None = None
@@ -213,6 +215,7 @@ class Run:
         """
         self._prepare_outdir()
         summary, timer = self.summary, self.timer
+        failed = False
         try:
             if self.mesh is None:
                 with timer.phase("mesh"):
@@ -228,21 +231,28 @@ class Run:
             self._steps()
             summary["status"] = "converged"
         except SolverError as err:
+            failed = True
             summary["status"] = f"failed: {err}"
             if err.record:  # the work of the step that failed, its attempts and cuts included
                 summary["failed_step"] = err.record
             raise
         except Interrupted as err:
+            failed = True
             summary["status"] = f"interrupted: {err}"
             raise
         except BaseException as err:
+            failed = True
             summary["status"] = f"error: {type(err).__name__}: {err}"
             raise
         finally:
-            if self.physics is not None:
-                self.physics.finish(summary, self.records)
-            summary["wall_time"] = timer.report(self.comm)
-            self._write_summary()
+            # an error on some ranks only (a bug, a library raising on one rank): the others
+            # wait in a collective call and would never join those below; the error goes up
+            # at once, and poromech run aborts every rank with it
+            if not failed or all_ranks_failed(self.comm):
+                if self.physics is not None:
+                    self.physics.finish(summary, self.records)
+                summary["wall_time"] = timer.report(self.comm)
+                self._write_summary()
         return summary
 
     # -- pieces of the lifecycle ----------------------------------------------------------------

@@ -664,7 +664,8 @@ def test_error_on_one_rank_aborts_without_hang(tmp_path):
         "import dolfinx_solver\n"
         "from mpi4py import MPI\n"
         "import poromech.cli as cli\n"
-        "cli.AGREE_TIMEOUT = 1.0\n"
+        "import poromech.parallel\n"
+        "poromech.parallel.AGREE_TIMEOUT = 1.0\n"
         "def command(args, petsc_opts, comm):\n"
         "    if comm.rank == 1:\n"
         "        raise OSError('disk gone on rank 1')\n"
@@ -677,6 +678,38 @@ def test_error_on_one_rank_aborts_without_hang(tmp_path):
     assert proc.returncode != 0 and time.perf_counter() - t0 < 60
     assert proc.stderr.count("disk gone on rank 1") == 1, proc.stderr
     assert "on rank 1 only" in proc.stderr
+
+
+@pytest.mark.mpi
+def test_an_error_inside_a_run_on_one_rank_aborts_without_hang(tmp_path):
+    """A bug raising on rank 0 only while the physics is built: rank 0 went into the run's
+    clean-up, whose calls are collective (the summary, the timers), while rank 1 waited in the
+    first step's: every mechanics run on 2 ranks hung that way, silently, for a pickling
+    reduction that failed on one rank. Now the clean-up is skipped where the others did not
+    fail, and the error aborts every rank, said once."""
+    script = tmp_path / "one_rank_run.py"
+    script.write_text(
+        "import sys\n"
+        "import dolfinx_solver\n"
+        "from mpi4py import MPI\n"
+        "import poromech.parallel\n"
+        "poromech.parallel.AGREE_TIMEOUT = 1.0\n"
+        "import poromech.cli as cli\n"
+        "import poromech.run as run\n"
+        "init = run.Run.__init__\n"
+        "def bug(physics):\n"
+        "    if MPI.COMM_WORLD.rank == 0:\n"
+        "        raise ValueError('a bug on rank 0')\n"
+        "def patched(self, *args, **kwargs):\n"
+        "    init(self, *args, **kwargs, prepare=bug)\n"
+        "run.Run.__init__ = patched\n"
+        f"sys.exit(cli.main(['run', 'sneddon', '-q', '-o', {str(tmp_path / 'out')!r}]))\n")
+    t0 = time.perf_counter()
+    proc = subprocess.run([mpirun(), "-n", "2", sys.executable, str(script)],
+                          capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert proc.returncode != 0 and time.perf_counter() - t0 < 60
+    assert proc.stderr.count("a bug on rank 0") == 1, proc.stderr
+    assert "on rank 0 only" in proc.stderr
 
 
 @pytest.mark.mpi
