@@ -36,7 +36,7 @@ from poromech.physics import Physics
 from poromech.scene.fields import validate_fields
 from poromech.scene.geometry import absolute_geometry_paths, mesh_sizes, scene_geometry
 from poromech.scene.schema import Scene, step_times
-from poromech.stepping import Interrupted, run_steps, stop_signals
+from poromech.stepping import Interrupted, run_steps, stop_at_once, stop_signals
 from poromech.timing import Timer
 
 __all__ = ["PHYSICS", "SCENE_FILE", "Run", "build_mesh", "mesh_summary", "run_scene"]
@@ -217,17 +217,8 @@ class Run:
         summary, timer = self.summary, self.timer
         failed = False
         try:
-            if self.mesh is None:
-                with timer.phase("mesh"):
-                    self.mesh = build_mesh(self.scene, self.comm)
-            validate_fields(self.scene, self.mesh)  # every expression where it is evaluated
-            summary["mesh"] = mesh_summary(self.mesh)
-            log.info("mesh: %(cells)d cells, %(fracture_faces)d fracture faces", summary["mesh"])
-            warn_unresolved_fractures(self.mesh)
-            self.physics = PHYSICS[self.scene.physics](self.scene, self.mesh, timer)
-            if self.prepare is not None:
-                self.prepare(self.physics)
-            summary.update(self.physics.describe())
+            with stop_at_once():  # the set-up: a signal stops it at once
+                self._set_up()
             self._steps()
             summary["status"] = "converged"
         except SolverError as err:
@@ -256,6 +247,21 @@ class Run:
         return summary
 
     # -- pieces of the lifecycle ----------------------------------------------------------------
+    def _set_up(self) -> None:
+        """The mesh (unless given), the checks on it, the physics and its description."""
+        summary, timer = self.summary, self.timer
+        if self.mesh is None:
+            with timer.phase("mesh"):
+                self.mesh = build_mesh(self.scene, self.comm)
+        validate_fields(self.scene, self.mesh)  # every expression where it is evaluated
+        summary["mesh"] = mesh_summary(self.mesh)
+        log.info("mesh: %(cells)d cells, %(fracture_faces)d fracture faces", summary["mesh"])
+        warn_unresolved_fractures(self.mesh)
+        self.physics = PHYSICS[self.scene.physics](self.scene, self.mesh, timer)
+        if self.prepare is not None:
+            self.prepare(self.physics)
+        summary.update(self.physics.describe())
+
     def _prepare_outdir(self) -> None:
         if self.outdir is None:
             return

@@ -39,7 +39,7 @@ from poromech.errors import SolverError
 from poromech.physics import Physics, StepResult
 from poromech.scene.schema import Scene, step_times
 
-__all__ = ["Interrupted", "run_steps", "stop_signals"]
+__all__ = ["Interrupted", "run_steps", "stop_at_once", "stop_signals"]
 
 log = logging.getLogger("poromech")
 
@@ -47,10 +47,38 @@ log = logging.getLogger("poromech")
 class Interrupted(RuntimeError):
     """The run was stopped by a signal at a step boundary; ``signum`` tells which."""
 
-    def __init__(self, signum: int):
-        super().__init__(f"stopped by {signal.Signals(signum).name} after the last completed "
-                         "step; its outputs are complete")
+    def __init__(self, signum: int, setting_up: bool = False):
+        super().__init__(
+            f"stopped by {signal.Signals(signum).name} while setting up, before the first step "
+            "(nothing was solved)" if setting_up else
+            f"stopped by {signal.Signals(signum).name} after the last completed step; its "
+            "outputs are complete")
         self.signum = signum
+
+
+def _stop_now(signum, frame) -> None:
+    raise Interrupted(signum, setting_up=True)
+
+
+class stop_at_once:
+    """Context manager: SIGINT/SIGTERM raise :class:`Interrupted` at once (the set-up).
+
+    Meshing, building the physics and compiling forms can take minutes in 3D: a signal there
+    ends the run with the one-line message of a stop at a step boundary, and a summary, where
+    SIGINT printed a traceback and SIGTERM ended it without a word or a summary.
+    """
+
+    def __enter__(self) -> None:
+        self._previous: dict[int, object] = {}
+        try:
+            for s in (signal.SIGINT, signal.SIGTERM):
+                self._previous[s] = signal.signal(s, _stop_now)
+        except ValueError:  # not in the main thread: signals act as usual
+            pass
+
+    def __exit__(self, *exc) -> None:
+        for s, h in self._previous.items():
+            signal.signal(s, h)
 
 
 class _StopFlag:

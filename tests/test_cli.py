@@ -221,3 +221,30 @@ def test_a_probe_along_a_crack_reads_its_plus_side(tmp_path):
     on, below = tables[1, "along"], tables[1, "below"]
     assert np.all(on < 0.0) and np.abs(on - below).max() <= 1e-4 * np.abs(below).max()
     assert np.abs(tables[2, "along"] - on).max() <= 1e-9 * np.abs(on).max()
+
+
+def test_a_signal_while_setting_up_stops_with_one_line_and_a_summary(tmp_path):
+    """SIGTERM while the mesh and the physics are built (minutes in 3D) ended the run without a
+    word or a summary.json (SIGINT: a traceback); now it stops at once like a stop at a step
+    boundary: status 128 + 15, one line, the summary says interrupted."""
+    script = tmp_path / "signal_setup.py"
+    out = tmp_path / "out"
+    script.write_text(
+        "import os, signal, sys\n"
+        "import dolfinx_solver\n"
+        "import poromech.cli as cli\n"
+        "import poromech.run as run\n"
+        "init = run.Run.__init__\n"
+        "def term(physics):\n"
+        "    os.kill(os.getpid(), signal.SIGTERM)\n"
+        "def patched(self, *args, **kwargs):\n"
+        "    init(self, *args, **kwargs, prepare=term)\n"
+        "run.Run.__init__ = patched\n"
+        f"sys.exit(cli.main(['run', 'sneddon', '-q', '-o', {str(out)!r}]))\n")
+    proc = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                          cwd=ROOT, timeout=300)
+    assert proc.returncode == 128 + 15, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "stopped by SIGTERM while setting up" in lines[0], proc.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"].startswith("interrupted: stopped by SIGTERM while setting up")

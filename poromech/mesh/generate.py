@@ -11,6 +11,7 @@ cells and ``2^m`` times the fracture faces.
 from __future__ import annotations
 
 import contextlib
+import signal
 from dataclasses import dataclass
 
 import numpy as np
@@ -111,10 +112,18 @@ class MeshArrays:
 
 @contextlib.contextmanager
 def gmsh_session():
-    """Initialize gmsh quietly and finalize it whatever happens."""
+    """Initialize gmsh quietly and finalize it whatever happens.
+
+    ``gmsh.initialize`` resets the SIGINT and SIGTERM handlers to the system's: those of the
+    run (a stop at once while setting up) are put back.
+    """
     import gmsh
 
+    handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
     gmsh.initialize(interruptible=False)
+    with contextlib.suppress(ValueError, TypeError):  # not the main thread; a C handler
+        for s, h in handlers.items():
+            signal.signal(s, h)
     gmsh.option.setNumber("General.Terminal", 0)
     gmsh.option.setNumber("General.Verbosity", 1)
     try:
