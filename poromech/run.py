@@ -22,15 +22,22 @@ import dolfinx_solver  # noqa: F401
 import numpy as np
 import yaml
 from mpi4py import MPI
+from petsc4py import PETSc
 
 import poromech
 from poromech.errors import ConfigError, SolverError
-from poromech.io.checkpoint import CHECKPOINT, load_checkpoint, save_checkpoint
+from poromech.io.checkpoint import (
+    CHECKPOINT,
+    load_checkpoint,
+    read_checkpoint_meta,
+    save_checkpoint,
+)
 from poromech.io.output import write_summary
 from poromech.io.xdmf import atomic_write_text, root_write
+from poromech.mesh.entities import domain_box
 from poromech.mesh.fractured import FracturedMesh, distribute_mesh
 from poromech.mesh.generate import generate_mesh
-from poromech.parallel import all_ranks_failed, error_comm
+from poromech.parallel import all_ranks_failed, error_comm, on_root
 from poromech.petsc_options import check_petsc_options, database_options
 from poromech.physics import Physics
 from poromech.scene.fields import validate_fields
@@ -134,6 +141,27 @@ def mesh_summary(fm: FracturedMesh) -> dict:
     }
 
 
+def mesh_fingerprint(fm: FracturedMesh) -> list[float]:
+    """The bounding box of a mesh's points and their first and second moments (collective).
+
+    Independent of the partition to round-off: a restart compares it with its checkpoint's,
+    which accepted a mesh file whose points had all been moved (or a geometry scaled) as long
+    as the cell and vertex counts were the same.
+    """
+    msh = fm.msh
+    x = msh.geometry.x[: msh.geometry.index_map().size_local, : msh.geometry.dim]
+    lo, hi = domain_box(msh)
+    sums = np.concatenate([x.sum(axis=0), (x * x).sum(axis=0)])
+    total = np.empty_like(sums)
+    fm.comm.Allreduce(sums, total, op=MPI.SUM)
+    return [*map(float, lo), *map(float, hi), *map(float, total)]
+
+
+def _box(values: list[float], d: int) -> str:
+    lo, hi = values[:d], values[d: 2 * d]
+    return "[" + ", ".join(f"{a:.6g}..{b:.6g}" for a, b in zip(lo, hi, strict=True)) + "]"
+
+
 class Run:
     """One run of a scene, from its mesh to its outputs (collective).
 
@@ -169,7 +197,8 @@ class Run:
                               "that stopped before its first step): nothing to continue from")
         # the checks of `poromech run` for a run made from a script: the scene's PETSc options
         # and those set in PETSc's database (ksponly, a second line search, ...), before meshing
-        check_petsc_options(database_options(), scene)
+        options = database_options()
+        check_petsc_options(options, scene)
         # relative file names of a mapping given to scene_from_dict were read from the working
         # directory: stored as absolute paths, a later --restart of outdir finds them again
         raw = None if raw is None else absolute_geometry_paths(raw, Path.cwd())
@@ -180,8 +209,16 @@ class Run:
         self.physics: Physics | None = None
         self.timer = Timer()
         self.records: list[dict] = []
-        #: ``{"from_step", "mpi_ranks"}`` of each part of a restarted run (this one last).
+        self._applied: list[str] = []  # options of the continued run put in PETSc's database
+        if restart:
+            options = self._continued_options(options)
+        #: ``{"from_step", "mpi_ranks"}`` of each part of a restarted run (this one last), and
+        #: the PETSc options of poromech's solvers given to it (command line, script).
         self.parts: list[dict] = [{"from_step": 0, "mpi_ranks": comm.size}]
+        if options:
+            self.parts[0]["petsc_options"] = options
+        self._restored = False  # a restart whose checkpoint was accepted
+        self._fingerprint: list[float] = []
         self.summary: dict = {
             "scene": scene.name,
             "physics": scene.physics,
@@ -189,6 +226,8 @@ class Run:
             "mpi_ranks": comm.size,
             "status": "running",
         }
+        if options:
+            self.summary["petsc_options"] = options
 
     def __enter__(self) -> Run:
         return self
@@ -196,8 +235,39 @@ class Run:
     def __exit__(self, *exc) -> None:
         self.close()
 
+    def _continued_options(self, given: dict[str, str]) -> dict[str, str]:
+        """The PETSc options a restart runs with: those of the run it continues, and ``given``.
+
+        ``poromech run --restart`` continues a run as it was set up, and the solver options
+        given to it on the command line are part of that: they were dropped (a run given
+        ``-mech_snes_rtol 1e-3`` went on with the default, 2-6 Newton iterations per step where
+        the uninterrupted run took 0-2, and nothing recorded it). Options given again are
+        kept; an option given with another value is said.
+        """
+        meta = on_root(self.comm, read_checkpoint_meta, self.outdir / CHECKPOINT)[0]
+        before = (meta.get("parts") or [{}])[-1].get("petsc_options") or {}
+        opts = PETSc.Options()
+        for k, v in before.items():
+            if k not in given:
+                opts[k] = v
+                self._applied.append(k)
+        if self._applied:
+            log.info("the restart goes on with the PETSc options of the run it continues: %s",
+                     " ".join(f"-{k} {before[k]}".strip() for k in self._applied))
+        changed = [k for k in given if before.get(k) != given[k]]
+        if changed:
+            log.warning("the restart changes PETSc options of the run it continues: %s (the "
+                        "summary's parts record each part's)",
+                        ", ".join(f"-{k} {before.get(k, '(not given)')} -> {given[k]}"
+                                  for k in changed))
+        return {**before, **given}
+
     def close(self) -> None:
         """Free the physics' PETSc objects (collective)."""
+        opts = PETSc.Options()
+        for k in self._applied:  # the continued run's options leave the database with it
+            opts.delValue(k)
+        self._applied = []
         if self.physics is not None:
             self.physics.close()
             self.physics = None
@@ -243,7 +313,8 @@ class Run:
                 if self.physics is not None:
                     self.physics.finish(summary, self.records)
                 summary["wall_time"] = timer.report(self.comm)
-                self._write_summary()
+                if not self.restart or self._restored:  # a refused restart keeps the run's
+                    self._write_summary()
         return summary
 
     # -- pieces of the lifecycle ----------------------------------------------------------------
@@ -255,6 +326,7 @@ class Run:
                 self.mesh = build_mesh(self.scene, self.comm)
         validate_fields(self.scene, self.mesh)  # every expression where it is evaluated
         summary["mesh"] = mesh_summary(self.mesh)
+        self._fingerprint = mesh_fingerprint(self.mesh)
         log.info("mesh: %(cells)d cells, %(fracture_faces)d fracture faces", summary["mesh"])
         warn_unresolved_fractures(self.mesh)
         self.physics = PHYSICS[self.scene.physics](self.scene, self.mesh, timer)
@@ -308,6 +380,7 @@ class Run:
         """The state of the last completed step from the checkpoint: (steps done, its time)."""
         meta, arrays = load_checkpoint(self.comm, self.outdir)
         self._check_restart(meta)
+        self._restored = True
         # the scene the run goes on with (a run extended by more steps, or continued with
         # other settings through the API): Results.scene and a later --restart read it
         self._store_scene()
@@ -318,7 +391,7 @@ class Run:
             self.summary["initial"] = meta["initial"]
         # the parts before (a checkpoint from before 2026-11-29 does not know its ranks)
         self.parts = [*meta.get("parts", [{"from_step": 0, "mpi_ranks": None}]),
-                      {"from_step": start, "mpi_ranks": self.comm.size}]
+                      {**self.parts[-1], "from_step": start}]
         self.summary["restarted_from"] = {"step": start, "time": resume}
         self.summary["parts"] = self.parts
         self.summary["completed_steps"] = start  # a run restarted after its last step has none
@@ -336,6 +409,15 @@ class Run:
             raise ConfigError(f"the checkpoint was written for another mesh ({meta['mesh']}, "
                               f"{meta.get('dofs')} dofs) than this one ({summary['mesh']}, "
                               f"{summary.get('dofs')} dofs)")
+        stored = meta.get("fingerprint")  # (none in checkpoints from before 2026-11-29)
+        if stored is not None and not np.allclose(stored, self._fingerprint, rtol=1e-9,
+                                                   atol=1e-12 * max(map(abs, stored))):
+            d = len(stored) // 2
+            raise ConfigError(
+                "the checkpoint was written for a mesh of as many cells and vertices at other "
+                f"places (bounding box {_box(stored, d)} against {_box(self._fingerprint, d)}, "
+                "or points moved inside): the geometry or the mesh file changed since, and a "
+                "restart continues the same mesh")
         if meta.get("dofs") != summary.get("dofs"):  # the same mesh: degree or formulation
             raise ConfigError(f"the checkpoint was written for {meta.get('dofs')} unknowns on this "
                               f"mesh, the scene has {summary.get('dofs')}: its degree, contact "
@@ -364,7 +446,8 @@ class Run:
                 meta = {"steps_done": k + 1, "time": t, "records": self.records,
                         "initial": summary.get("initial"),
                         "mesh": summary["mesh"], "dofs": summary.get("dofs"),
-                        "scene": self.scene.name, "parts": self.parts}
+                        "scene": self.scene.name, "parts": self.parts,
+                        "fingerprint": self._fingerprint}
                 save_checkpoint(self.comm, self.outdir, meta, self.physics.state())
 
 

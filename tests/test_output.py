@@ -279,3 +279,70 @@ def test_displacement_points_are_the_mesh_points_to_the_bit(tmp_path, degree):
     exact = len(np.unique(x, axis=0))
     rounded = len(np.unique(np.round(x, 12), axis=0))
     assert exact == rounded < len(x)  # the copies of the crack nodes coincide exactly
+
+
+def _extend(out, **time):
+    """Give the scene stored in ``out`` more steps (or other changes), as a user does."""
+    import yaml
+
+    path = out / "poromech_scene.yaml"
+    raw = yaml.safe_load(path.read_text())
+    raw["time"].update(time)
+    path.write_text(yaml.safe_dump(raw, sort_keys=False))
+    return raw, path
+
+
+def test_a_restart_goes_on_with_the_petsc_options_of_its_run(tmp_path):
+    """``-mech_snes_rtol 1e-3`` given to a run was dropped by its ``--restart``: steps 6-10
+    took 6,6,2,2,2 Newton iterations where the uninterrupted run took 2,0,2,0,1, and nothing
+    said so. The restart now runs with them (and records each part's)."""
+    opts = ["-mech_snes_rtol", "1e-3"]
+    full, part = tmp_path / "full", tmp_path / "part"
+    sets = ["--set", "time.final=1000.0"]
+    for out, steps in ((full, "10"), (part, "5")):
+        proc = subprocess.run([*POROMECH, "run", SCENE, "-q", "-o", str(out), *sets, "--set",
+                               f"time.steps={steps}", "--set", f"time.final={100 * int(steps)}",
+                               *opts], capture_output=True, text=True, cwd=ROOT, timeout=600)
+        assert proc.returncode == 0, proc.stderr
+    _extend(part, final=1000.0, steps=10)
+    proc = subprocess.run([*POROMECH, "run", "--restart", str(part)], capture_output=True,
+                          text=True, cwd=ROOT, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    assert "goes on with the PETSc options of the run it continues: -mech_snes_rtol 1e-3" \
+        in proc.stdout
+    a, b = (json.loads((o / "summary.json").read_text()) for o in (full, part))
+    assert [s["iterations"] for s in a["solves"]] == [s["iterations"] for s in b["solves"]]
+    assert b["parts"] == [{"from_step": 0, "mpi_ranks": 1,
+                           "petsc_options": {"mech_snes_rtol": "1e-3"}},
+                          {"from_step": 5, "mpi_ranks": 1,
+                           "petsc_options": {"mech_snes_rtol": "1e-3"}}]
+
+
+def test_a_refused_restart_leaves_the_run_and_its_summary(tmp_path):
+    """A restart refused for another mesh rewrote summary.json as an error with no step (the
+    XDMF and CSV still held 4); and a geometry scaled by 2 with its mesh sizes, whose mesh has
+    as many cells and vertices, was accepted and went on on the other mesh."""
+    out = tmp_path / "run"
+    proc = subprocess.run([*POROMECH, "run", "injection", "-q", "-o", str(out), "--set",
+                           "time.steps=2", "--set", "time.final=100", "--set", "degree=1"],
+                          capture_output=True, text=True, cwd=ROOT, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    before = (out / "summary.json").read_text()
+    raw, path = _extend(out, steps=4, final=200)
+    scaled = json.loads(json.dumps(raw))
+    ((x0, y0, x1, y1),) = scaled["geometry"]["domain"].values()
+    scaled["geometry"]["domain"] = {"rectangle": [2 * x0, 2 * y0, 2 * x1, 2 * y1]}
+    for f in scaled["geometry"]["fractures"]:
+        f["points"] = [[2 * x, 2 * y] for x, y in f["points"]]
+    for k in ("size", "fracture_size", "tip_size", "transition"):
+        if k in (scaled.get("mesh") or {}):
+            scaled["mesh"][k] = 2 * scaled["mesh"][k]
+    import yaml
+
+    for changed, message in ((scaled, "at other places"),
+                             ({**raw, "mesh": {**raw["mesh"], "size": 0.1}}, "another mesh")):
+        path.write_text(yaml.safe_dump(changed, sort_keys=False))
+        proc = subprocess.run([*POROMECH, "run", "--restart", str(out)], capture_output=True,
+                              text=True, cwd=ROOT, timeout=600)
+        assert proc.returncode == 2 and message in proc.stderr, proc.stderr
+        assert (out / "summary.json").read_text() == before

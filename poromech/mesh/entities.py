@@ -21,6 +21,7 @@ from mpi4py import MPI
 __all__ = [
     "CellGeometry",
     "cell_geometry",
+    "domain_box",
     "domain_extent",
     "facet_ridges",
     "facet_vertices",
@@ -189,10 +190,16 @@ def fracture_segments(msh: dolfinx.mesh.Mesh, facets: npt.NDArray[np.int32],
     return x
 
 
-def domain_extent(msh: dolfinx.mesh.Mesh) -> float:
-    """The diagonal of the mesh's bounding box (m; collective, the same on every rank)."""
-    x = msh.geometry.x[: msh.geometry.index_map().size_local]
+def domain_box(msh: dolfinx.mesh.Mesh) -> tuple[npt.NDArray, npt.NDArray]:
+    """The lowest and highest coordinates of the mesh's points, ``(gdim,)`` each (collective)."""
+    x = msh.geometry.x[: msh.geometry.index_map().size_local, : msh.geometry.dim]
     lo, hi = np.empty(x.shape[1]), np.empty(x.shape[1])
     msh.comm.Allreduce(np.ascontiguousarray(x.min(axis=0, initial=np.inf)), lo, op=MPI.MIN)
     msh.comm.Allreduce(np.ascontiguousarray(x.max(axis=0, initial=-np.inf)), hi, op=MPI.MAX)
+    return lo, hi
+
+
+def domain_extent(msh: dolfinx.mesh.Mesh) -> float:
+    """The diagonal of the mesh's bounding box (m; collective, the same on every rank)."""
+    lo, hi = domain_box(msh)
     return float(np.linalg.norm(hi - lo))
