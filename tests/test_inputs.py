@@ -937,3 +937,27 @@ def test_two_displacements_of_one_component_where_boundaries_meet_are_reported(t
     captured = capsys.readouterr()
     assert "set u_x to 0.002 and 0 m where boundaries 'bottom' and 'left' meet" \
         in captured.out + captured.err
+
+
+@pytest.mark.parametrize(("scene", "key", "value", "message"), [
+    # the coupled initial equilibrium uses the loads at t = 0, not only at the step times
+    ("terzaghi", "boundary_conditions.3.traction", "[0, '-sigma0*sqrt(t-1)']",
+     "'boundary_conditions.3.traction.1' = '-sigma0*sqrt(t-1)' is nan at x=0, y=1, t=0"),
+    ("terzaghi", "flow.permeability", "['1e-14*(1+log(t))']", "'flow.permeability' = [-inf]"),
+    # the weight and the in-situ stress, where the solver interpolates them
+    ("fault_reactivation", "material.density", "2450+0*log(x)",
+     "'material.density' = '2450+0*log(x)' is nan at x=0"),
+    ("fault_reactivation", "material.initial_stress",
+     "['k*rho*g*y+0*sqrt(x-0.5)', 'rho*g*y', 0.0]",
+     "'material.initial_stress.0' = 'k*rho*g*y+0*sqrt(x-0.5)' is nan at x=0"),
+])
+def test_fields_used_at_t0_and_the_weight_are_checked_on_the_mesh(scene, key, value, message,
+                                                                   capsys):
+    """``validate --mesh`` said valid, and the run failed with NaN (``DIVERGED_FUNCTION_NANORINF``
+    in the initial equilibrium, or PETSc's error 76 in MUMPS)."""
+    from poromech.cli import main
+
+    sets = ["--set", f"{key}={value}", "--set", "time.steps=2"]
+    assert main(["validate", scene, *sets, "--mesh"]) == 2
+    last = capsys.readouterr().err.strip().splitlines()[-1]
+    assert message in last, last

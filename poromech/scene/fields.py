@@ -143,6 +143,12 @@ def _mechanics_checks(scene: Scene, fm: FracturedMesh, p: _Points, times) -> Ite
     for k, e in enumerate(mat.body_force or ()):
         yield lambda k=k, e=e: check_expression(e, nodes, f"material.body_force.{k}", None,
                                                 times, "a mesh node")
+    # interpolated at the nodes of DG of the displacement degree (σ⁰ at least DG1)
+    yield lambda: check_expression(mat.density, nodes, "material.density",
+                                   _meta(Material, "density"), times, "a mesh node")
+    for k, e in enumerate(mat.initial_stress or ()):
+        yield lambda k=k, e=e: check_expression(e, nodes, f"material.initial_stress.{k}", None,
+                                                [0.0], "a mesh node")
     for i, bc in enumerate(scene.boundary_conditions):
         pts = p.boundary(_edges(fm, bc.boundary), scene.degree)
         for kind in ("displacement", "traction"):
@@ -210,6 +216,10 @@ def validate_fields(scene: Scene, fm: FracturedMesh) -> None:
             point (the first failure in a partition-independent order).
     """
     times = step_times(scene)
+    if scene.time is not None and (scene.physics == "poromechanics"
+                                   or scene.material is not None
+                                   and scene.material.initial_stress is not None):
+        times = [0.0, *times]  # the initial equilibrium (and the σ⁰ check) use the loads at 0
     p = _mesh_points(fm)
     checks: list[Check] = []
     if scene.physics in ("mechanics", "poromechanics"):
