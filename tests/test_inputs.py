@@ -961,3 +961,39 @@ def test_fields_used_at_t0_and_the_weight_are_checked_on_the_mesh(scene, key, va
     assert main(["validate", scene, *sets, "--mesh"]) == 2
     last = capsys.readouterr().err.strip().splitlines()[-1]
     assert message in last, last
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["sneddon", "--set", "mesh.refinement=1" + "0" * 400], "'mesh.refinement' = 1000"),
+    (["penny", "--set", "geometry.fractures.0.disc.radius=1.0e+200"],
+     "beyond what double precision computes with"),
+    (["inclined_crack_slip", "--set",
+      "boundary_conditions.0.displacement=['inclined_crack_ux(x, y, b, 0.3*y, sigma, F, E, nu)',"
+      " 0]"], "cannot be evaluated (ValueError"),
+    (["sneddon", "--set", "boundary_conditions.0.displacement=['mandel_p(x,t,0,1,1,0.25,1,1,1)',"
+      " 0]"], "cannot be evaluated (ZeroDivisionError"),
+    (["flow_barrier_conduit", "--set", "probes.0.name=" + "p" * 260],
+     "is 260 bytes long (allowed: at most 200"),
+    (["terzaghi", "--set", "time.final=5.0e-324", "--set", "time.steps=2"],
+     "gives a step of 0 s (allowed: steps of at least 1e-200 s)"),
+])
+def test_fuzzed_input_is_one_line(args, message, capsys):
+    """Inputs a fuzzer found to end in a traceback (a huge integer, an overflow in the geometry
+    checks, an exact field given varying or degenerate parameters), or to pass ``validate`` and
+    fail later (a probe name too long for a file name, steps that round to 0 s)."""
+    from poromech.cli import main
+
+    assert main(["validate", *args]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0], err
+
+
+def test_a_yaml_set_as_a_key_is_one_line(tmp_path, capsys):
+    """``? !!set {x}`` raised TypeError: unhashable type: 'set'."""
+    from poromech.cli import main
+
+    path = tmp_path / "set.yaml"
+    path.write_text("? !!set {x}\n")
+    assert main(["validate", str(path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "is not valid YAML" in err[0], err

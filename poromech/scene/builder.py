@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
+import math
 import re
 import types
 import typing
@@ -225,8 +226,12 @@ RANGE_RULES = {
 
 def check_number(value: float, path: str, meta: Mapping, where: str = "") -> None:
     """Refuse a number that is not finite or outside the range of its field metadata."""
-    if not np.isfinite(value):
-        raise ConfigError(f"scene key '{path}' = {value}{where} must be finite")
+    try:
+        finite = math.isfinite(value)
+    except OverflowError:  # an integer beyond any float (np.isfinite raised a TypeError)
+        finite = False
+    if not finite:
+        raise ConfigError(f"scene key '{path}' = {format_value(value)}{where} must be finite")
     for rule, (ok, text) in RANGE_RULES.items():
         if rule in meta and not ok(value, meta[rule]):
             allowed = text.format(meta[rule])

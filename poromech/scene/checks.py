@@ -16,7 +16,15 @@ from poromech.errors import ConfigError
 from poromech.geometry.plane import PlaneGeometry, segment_meets_polygon
 from poromech.scene.builder import field_meta, format_value
 from poromech.scene.resources import ITERATIVE_FORMULATIONS
-from poromech.scene.schema import Contact, Flow, FractureFlow, Material, Scene, scene_dimension
+from poromech.scene.schema import (
+    Contact,
+    Flow,
+    FractureFlow,
+    Material,
+    Scene,
+    scene_dimension,
+    step_times,
+)
 from poromech.scene.values import (
     check_expression,
     check_field,
@@ -34,6 +42,10 @@ log = logging.getLogger("poromech")
 
 #: Names that become file names (scene name → results/<name>, probe name → probe_<name>.csv).
 _FILE_NAME = re.compile(r"[^\W_][\w.-]*")
+#: Shortest time step (s): shorter ones divide storage terms to overflow.
+MIN_STEP = 1e-200
+#: Longest name (UTF-8 bytes) of a scene or probe, which name files (:func:`check_name`).
+NAME_BYTES = 200
 
 
 def check_boundary_name(key: str, name: str, known: set[str]) -> None:
@@ -324,10 +336,19 @@ def _check_petsc_keys(scene: Scene) -> None:
 
 
 def check_name(key: str, name: str) -> None:
-    """Refuse a name that becomes part of a file name unless it is a plain name."""
+    """Refuse a name that becomes part of a file name unless it is a plain name.
+
+    At most :data:`NAME_BYTES` bytes in UTF-8: with its prefix and suffix (``.probe_<name>
+    .csv.part``) a file name must stay within the 255 bytes of common file systems (a probe
+    of 260 letters failed only when its file was first written, after the solve).
+    """
     if not _FILE_NAME.fullmatch(name):
         raise ConfigError(f"scene key '{key}' = {name!r} is not allowed: use letters, digits, "
                           "'_', '-' or '.' (starting with a letter or digit); it names files")
+    size = len(name.encode())
+    if size > NAME_BYTES:
+        raise ConfigError(f"scene key '{key}' = {name[:40]!r}... is {size} bytes long (allowed: "
+                          f"at most {NAME_BYTES}; it names files)")
 
 
 def _check_probes(scene: Scene, geo: PlaneGeometry) -> None:
@@ -403,6 +424,13 @@ def _check_time(scene: Scene) -> None:
         if len(t) == 0 or np.any(np.diff(t) <= 0):
             raise ConfigError(f"scene key 'time.times' = {[float(v) for v in t]} is not allowed: "
                               "must be a non-empty list of increasing times > 0")
+    # steps that round to nothing (final = 5e-324 over 2 steps: a step of 0 s, 1/dt = inf)
+    dt = float(np.min(np.diff([0.0, *step_times(scene)])))
+    if not dt >= MIN_STEP:
+        key, value = (("time.times", list(spec.times)) if spec.times is not None
+                      else ("time.final", spec.final))
+        raise ConfigError(f"scene key '{key}' = {value} gives a step of {dt:g} s (allowed: "
+                          f"steps of at least {MIN_STEP:g} s)")
 
 
 def _check_poromechanics(scene: Scene) -> None:

@@ -295,8 +295,14 @@ class Expression:
         for k, name in enumerate(COORDINATES):
             env[name] = points[:, k] if k < points.shape[1] else np.zeros(n)
         env["t"] = float(t)
-        with np.errstate(all="ignore"):
-            value = _evaluate(_parse(self.source), env)
+        try:
+            with np.errstate(all="ignore"):
+                value = _evaluate(_parse(self.source), env)
+        except (ValueError, ArithmeticError, TypeError) as err:  # an exact field's own checks
+            why = " ".join(str(err).split()) or type(err).__name__
+            raise ExpressionError(f"cannot be evaluated ({type(err).__name__}: {why[:120]}; "
+                                  "the parameters of an exact field must be constants, in "
+                                  "its range)") from None
         return np.broadcast_to(np.asarray(value, dtype=np.float64), (n,)).copy()
 
     def value(self, t: float = 0.0) -> float:

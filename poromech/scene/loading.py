@@ -140,14 +140,14 @@ class _StrictLoader(yaml.SafeLoader):
                 if key_node.tag == "tag:yaml.org,2002:merge":
                     continue
                 key = self.construct_object(key_node, deep=True)
-                try:
+                try:  # (a set is looked up as a frozenset, but cannot be added)
                     repeated = key in seen
+                    seen.add(key)
                 except TypeError:  # unhashable: PyYAML reports it
                     continue
                 if repeated:
                     raise _DuplicateKey(None, None, f"key {format_value(key)} is given twice",
                                         key_node.start_mark)
-                seen.add(key)
         return super().construct_mapping(node, deep)
 
 
@@ -317,6 +317,10 @@ def scene_from_dict(raw: Mapping) -> Scene:
             check_geometry(geo)
     except GeometryError as err:
         raise ConfigError(f"{geometry_source(scene)}: {err}") from None
+    except (OverflowError, FloatingPointError, ZeroDivisionError) as err:
+        raise ConfigError(f"{geometry_source(scene)}: its numbers are beyond what double "
+                          f"precision computes with ({type(err).__name__} in its checks; "
+                          "allowed: sizes and coordinates of a rock mass in metres)") from None
     check_scene(scene, geo)
     check_keys_used(scene, raw, geo)
     return scene

@@ -15,7 +15,7 @@ from poromech.errors import ConfigError
 from poromech.geometry.box import BoxGeometry
 from poromech.geometry.plane import PlaneGeometry
 from poromech.scene.builder import RANGE_RULES, format_value
-from poromech.scene.expressions import Expression
+from poromech.scene.expressions import Expression, ExpressionError
 from poromech.scene.schema import Scene, step_times
 
 __all__ = [
@@ -182,7 +182,11 @@ def check_expression(expr: Expression | None, points: np.ndarray, path: str,
         return
     pts = points[:1] if expr.is_uniform else points
     for t in (times if expr.depends_on_time else times[:1]):
-        values = expr(pts, t)
+        try:
+            values = expr(pts, t)
+        except ExpressionError as err:
+            raise ConfigError(f"scene key '{path}' = {format_value(expr.source)}: {err}") \
+                from None
         check_values(values, pts, path, expr, meta, t if expr.depends_on_time else None, what)
 
 
