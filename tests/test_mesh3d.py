@@ -887,3 +887,24 @@ def test_a_short_transition_keeps_the_fracture_size():
     h = np.sqrt(4 * _tri_area(ar.x, ar.fracture_facets) / np.sqrt(3))
     assert len(ar.fracture_facets) > 0.9 * np.pi / (np.sqrt(3) / 4 * 0.1**2)
     assert h.mean() < 1.1 * 0.1
+
+
+def test_a_fracture_size_above_the_size_is_checked_at_the_size():
+    """gmsh meshes a fracture at the smaller of fracture_size and size; the geometry checks
+    took fracture_size alone, and refused a disc 0.2 m from a face for being nearer than half
+    of 0.41 m, on a mesh of 0.2 m."""
+    from poromech.errors import ConfigError
+    from poromech.scene.loading import scene_from_dict
+
+    raw = {"name": "bigfs", "geometry": {
+        "domain": {"box": [0.0, 0.0, 0.0, 1.0, 1.0, 1.0]},
+        "fractures": [{"name": "d", "disc": {"center": [0.5, 0.5, 0.5], "normal": [0, 0, 1],
+                                             "radius": 0.3}}]},
+        "mesh": {"size": 0.2, "fracture_size": 0.41},
+        "material": {"young": 1.0e10, "poisson": 0.25},
+        "contact": {"formulation": "none"}, "fracture_pressure": 1.0e6,
+        "boundary_conditions": [{"boundary": "bottom", "displacement": [0, 0, 0]}]}
+    scene_from_dict(raw)
+    raw["mesh"]["size"] = 0.41
+    with pytest.raises(ConfigError, match="without reaching it"):
+        scene_from_dict(raw)

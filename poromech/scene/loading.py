@@ -312,7 +312,9 @@ def scene_from_dict(raw: Mapping) -> Scene:
         geo = scene_geometry(scene)
         if isinstance(geo, BoxGeometry):
             sizes = mesh_sizes(scene) if scene.mesh is not None else None
-            check_box_geometry(geo, sizes.fracture_size if sizes else None)
+            # the size the mesh has on the fractures: gmsh takes the smaller of the two (a
+            # fracture_size above size refused a disc 0.2 m from a face for 0.41 m / 2)
+            check_box_geometry(geo, min(sizes.fracture_size, sizes.size) if sizes else None)
         else:
             check_geometry(geo)
     except GeometryError as err:
