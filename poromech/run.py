@@ -412,7 +412,7 @@ class Run:
         stored = meta.get("fingerprint")  # (none in checkpoints from before 2026-11-29)
         if stored is not None and not np.allclose(stored, self._fingerprint, rtol=1e-9,
                                                    atol=1e-12 * max(map(abs, stored))):
-            d = len(stored) // 2
+            d = len(stored) // 4  # lowest and highest points, sums of x and of x²
             raise ConfigError(
                 "the checkpoint was written for a mesh of as many cells and vertices at other "
                 f"places (bounding box {_box(stored, d)} against {_box(self._fingerprint, d)}, "
