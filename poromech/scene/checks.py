@@ -42,8 +42,9 @@ log = logging.getLogger("poromech")
 
 #: Names that become file names (scene name → results/<name>, probe name → probe_<name>.csv).
 _FILE_NAME = re.compile(r"[^\W_][\w.-]*")
-#: Shortest time step (s): shorter ones divide storage terms to overflow.
-MIN_STEP = 1e-200
+#: Shortest time step (s), the smallest normal double: a step that rounds below it (0 s, or a
+#: subnormal number) divides the storage terms to infinity. (Steps of 1e-300 s run.)
+MIN_STEP = float(np.finfo(float).tiny)
 #: Longest name (UTF-8 bytes) of a scene or probe, which name files (:func:`check_name`).
 NAME_BYTES = 200
 
@@ -430,7 +431,7 @@ def _check_time(scene: Scene) -> None:
         key, value = (("time.times", list(spec.times)) if spec.times is not None
                       else ("time.final", spec.final))
         raise ConfigError(f"scene key '{key}' = {value} gives a step of {dt:g} s (allowed: "
-                          f"steps of at least {MIN_STEP:g} s)")
+                          f"steps of at least {MIN_STEP:.3g} s)")
 
 
 def _check_poromechanics(scene: Scene) -> None:
