@@ -298,6 +298,8 @@ class Expression:
         try:
             with np.errstate(all="ignore"):
                 value = _evaluate(_parse(self.source), env)
+        except ExpressionError:
+            raise
         except (ValueError, ArithmeticError, TypeError) as err:  # an exact field's own checks
             why = " ".join(str(err).split()) or type(err).__name__
             raise ExpressionError(f"cannot be evaluated ({type(err).__name__}: {why[:120]}; "
