@@ -656,6 +656,17 @@ def test_mpirun_exits_2_with_one_line(tmp_path, args):
     assert len(lines) == 1 and "Traceback" not in proc.stderr, lines
 
 
+def aborts_once(script, message: str, rank: int) -> None:
+    """``script`` on 2 ranks raises ``message`` on ``rank`` only: every rank ends, non-zero,
+    within a minute, the error said once as that rank's alone."""
+    t0 = time.perf_counter()
+    proc = subprocess.run([mpirun(), "-n", "2", sys.executable, str(script)],
+                          capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert proc.returncode != 0 and time.perf_counter() - t0 < 60
+    assert proc.stderr.count(message) == 1, proc.stderr
+    assert f"on rank {rank} only" in proc.stderr
+
+
 @pytest.mark.mpi
 def test_error_on_one_rank_aborts_without_hang(tmp_path):
     script = tmp_path / "one_rank.py"
@@ -672,12 +683,7 @@ def test_error_on_one_rank_aborts_without_hang(tmp_path):
         "    comm.barrier()\n"
         "cli._COMMANDS['scenes'] = command\n"
         "sys.exit(cli.main(['scenes']))\n")
-    t0 = time.perf_counter()
-    proc = subprocess.run([mpirun(), "-n", "2", sys.executable, str(script)],
-                          capture_output=True, text=True, cwd=ROOT, timeout=120)
-    assert proc.returncode != 0 and time.perf_counter() - t0 < 60
-    assert proc.stderr.count("disk gone on rank 1") == 1, proc.stderr
-    assert "on rank 1 only" in proc.stderr
+    aborts_once(script, "disk gone on rank 1", rank=1)
 
 
 @pytest.mark.mpi
@@ -704,12 +710,7 @@ def test_an_error_inside_a_run_on_one_rank_aborts_without_hang(tmp_path):
         "    init(self, *args, **kwargs, prepare=bug)\n"
         "run.Run.__init__ = patched\n"
         f"sys.exit(cli.main(['run', 'sneddon', '-q', '-o', {str(tmp_path / 'out')!r}]))\n")
-    t0 = time.perf_counter()
-    proc = subprocess.run([mpirun(), "-n", "2", sys.executable, str(script)],
-                          capture_output=True, text=True, cwd=ROOT, timeout=120)
-    assert proc.returncode != 0 and time.perf_counter() - t0 < 60
-    assert proc.stderr.count("a bug on rank 0") == 1, proc.stderr
-    assert "on rank 0 only" in proc.stderr
+    aborts_once(script, "a bug on rank 0", rank=0)
 
 
 @pytest.mark.mpi
